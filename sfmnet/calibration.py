@@ -1,0 +1,89 @@
+"""A calibration: the matrix and offsets that turn raw readings into loads, and its JSON file."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from sfmnet.errors import SfmnetError
+from sfmnet.io import write_json_atomic
+
+
+def calibration_matrix(shape: torch.Tensor) -> torch.Tensor:
+    """``C = pinv(S)^T``, ``n x p``: the least-squares load of a reading, ``load = C (z - o)``."""
+    return torch.linalg.pinv(shape).T
+
+
+@dataclass
+class Calibration:
+    """``load = matrix @ (reading - offset)`` for each reading.
+
+    Attributes:
+        matrix: ``n x p`` (load units per raw unit).
+        offset: ``p`` raw units (zeros where not estimated).
+        channels: the ``p`` raw channel names.
+        axes: the ``n`` load axis names.
+        singular_values: spectrum of the readings the calibration came from.
+        residual_rms: RMS of the reconstruction residual per channel entry, raw units.
+        extra: anything else worth keeping in the file (method, frame, units).
+    """
+
+    matrix: torch.Tensor
+    offset: torch.Tensor
+    channels: list[str]
+    axes: list[str]
+    singular_values: list[float] = field(default_factory=list)
+    residual_rms: float = float("nan")
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def apply(self, readings: torch.Tensor) -> torch.Tensor:
+        """Loads of a batch of readings: ``(Z - 1 o^T) C^T``, ``f x p`` in, ``f x n`` out."""
+        matrix = self.matrix.to(readings.dtype)
+        return (readings - self.offset.to(readings.dtype)) @ matrix.T
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "matrix": self.matrix.tolist(),
+            "offset": self.offset.tolist(),
+            "channels": list(self.channels),
+            "axes": list(self.axes),
+            "singular_values": [float(v) for v in self.singular_values],
+            "residual_rms": float(self.residual_rms),
+            **self.extra,
+        }
+
+    def save(self, path: Path) -> None:
+        write_json_atomic(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path: Path) -> Calibration:
+        """Read a calibration file, checking its shape; a bad file raises :class:`SfmnetError`."""
+        try:
+            raw = json.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise SfmnetError(f"calibration file {path} does not exist: give the calibration.json of a run") from None
+        except (OSError, ValueError) as error:
+            raise SfmnetError(f"calibration file {path} cannot be read as JSON ({error}): give the calibration.json of a run") from None
+        known = {"matrix", "offset", "channels", "axes", "singular_values", "residual_rms"}
+        missing = sorted({"matrix", "offset", "channels", "axes"} - set(raw))
+        if missing:
+            raise SfmnetError(f"calibration file {path} lacks {', '.join(missing)}: give the calibration.json of a run")
+        matrix = torch.tensor(raw["matrix"], dtype=torch.float64)
+        offset = torch.tensor(raw["offset"], dtype=torch.float64)
+        if matrix.ndim != 2 or matrix.shape != (len(raw["axes"]), len(raw["channels"])) or offset.shape != (len(raw["channels"]),):
+            raise SfmnetError(
+                f"calibration file {path} is inconsistent: matrix must be axes x channels and offset one per channel"
+            )
+        return cls(
+            matrix=matrix,
+            offset=offset,
+            channels=list(raw["channels"]),
+            axes=list(raw["axes"]),
+            singular_values=list(raw.get("singular_values", [])),
+            residual_rms=float(raw.get("residual_rms", float("nan"))),
+            extra={k: v for k, v in raw.items() if k not in known},
+        )

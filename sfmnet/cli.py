@@ -1,0 +1,108 @@
+"""Command line: ``python -m sfmnet [train] [key=value ...] [-m]``.
+
+Hydra parses all of ``sys.argv``, so the command word is taken off first. ``train`` is the
+default command because Lightning's DDP launcher restarts worker processes as
+``python -m sfmnet <overrides>`` without it (NOTES 12).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from sfmnet.errors import SfmnetError
+
+USAGE = """\
+usage: python -m sfmnet [train] [key=value ...] [-m]
+
+commands:
+  train    fit an experiment and write its run directory (the default command)
+           python -m sfmnet train                        experiment=fingertip, the default
+           python -m sfmnet train experiment=table1      least squares vs shape from motion
+           python -m sfmnet train -m data.noise_fraction=0.005,0.01,0.02   a sweep
+           python -m sfmnet train --help                 every config group and key
+
+errors print one line and exit with status 2; set SFMNET_DEBUG=1 for the full traceback.
+"""
+
+
+def config_dir() -> str:
+    """The configs: ``conf/`` of a checkout, else the copy installed inside the package."""
+    checkout = Path(__file__).resolve().parent.parent / "conf"
+    return str(checkout) if (checkout / "train.yaml").is_file() else "pkg://sfmnet.conf"
+
+
+def debug_enabled() -> bool:
+    return any(os.environ.get(name, "") not in ("", "0") for name in ("SFMNET_DEBUG", "HYDRA_FULL_ERROR"))
+
+
+def user_error(error: BaseException) -> SfmnetError | None:
+    """The :class:`SfmnetError` behind ``error``, if any (Hydra wraps errors raised while instantiating)."""
+    seen: set[int] = set()
+    current: BaseException | None = error
+    while current is not None and id(current) not in seen:
+        if isinstance(current, SfmnetError):
+            return current
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return None
+
+
+def exit_on_user_error(action: Callable[[], object]) -> None:
+    """Run ``action``; a user error becomes one line on stderr and exit status 2."""
+    try:
+        action()
+    except Exception as error:
+        cause = user_error(error)
+        if cause is None or debug_enabled():
+            raise
+        print(f"error: {cause}", file=sys.stderr)
+        sys.exit(2)
+
+
+def refuse_used_run_dir(overrides: list[str]) -> None:
+    """A run never writes into a directory that already holds files (a DDP worker re-enters its own)."""
+    if "-m" in overrides or "--multirun" in overrides or os.environ.get("LOCAL_RANK", "0") != "0":
+        return
+    for item in overrides:
+        if item.startswith("hydra.run.dir="):
+            run_dir = Path(item.split("=", 1)[1])
+            if run_dir.is_dir() and any(run_dir.iterdir()):
+                raise SfmnetError(
+                    f"run directory {run_dir} already holds files: give a new hydra.run.dir so nothing is overwritten"
+                )
+
+
+def train_command() -> None:
+    import hydra
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import DictConfig
+
+    from sfmnet.training.run import train
+
+    @hydra.main(version_base="1.3", config_path=config_dir(), config_name="train")
+    def task(cfg: DictConfig) -> None:
+        exit_on_user_error(lambda: train(cfg, Path(HydraConfig.get().runtime.output_dir)))
+
+    task()
+
+
+COMMANDS: dict[str, Callable[[], None]] = {"train": train_command}
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if args and args[0] in ("-h", "--help", "help"):
+        print(USAGE, end="")
+        return
+    command = "train"
+    if args and not args[0].startswith(("-", "+", "~")) and "=" not in args[0]:
+        command = args.pop(0)
+        if command not in COMMANDS:
+            print(f"error: unknown command '{command}': use one of {', '.join(COMMANDS)} (python -m sfmnet --help)", file=sys.stderr)
+            sys.exit(2)
+    exit_on_user_error(lambda: refuse_used_run_dir(args))
+    sys.argv = [sys.argv[0], *args]
+    COMMANDS[command]()

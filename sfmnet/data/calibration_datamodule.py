@@ -1,0 +1,47 @@
+"""The LightningDataModule shape shared by every calibration data source."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from sfmnet.data.recording import CalibrationData
+
+
+class CalibrationDataModule(L.LightningDataModule, ABC):
+    """Serves each recording as its own loader; a training batch is ``{name: (index, readings, loads)}``.
+
+    ``index`` (long, ``b``) is each row's position in its recording, so a model can keep a
+    per-sample table (the motion ``M``). Loads are NaN where unknown.
+
+    Args:
+        batch_size: rows per batch; ``None`` serves each recording whole (the right choice for
+            calibration-sized data, where a full-batch optimiser such as L-BFGS converges fastest).
+    """
+
+    def __init__(self, batch_size: int | None = None) -> None:
+        super().__init__()
+        self.batch_size = batch_size
+        self.data: CalibrationData | None = None
+
+    @abstractmethod
+    def build(self) -> CalibrationData:
+        """Read or simulate the data."""
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.data is None:
+            self.data = self.build()
+
+    def train_dataloader(self) -> dict[str, DataLoader]:
+        assert self.data is not None, "setup() runs before the loaders"
+        loaders = {}
+        for name, recording in self.data.recordings.items():
+            rows = len(recording.readings)
+            dataset = TensorDataset(torch.arange(rows), recording.readings, recording.loads)
+            loaders[name] = DataLoader(
+                dataset, batch_size=self.batch_size or rows, shuffle=self.batch_size is not None
+            )
+        return loaders

@@ -1,0 +1,200 @@
+"""Simulated linear sensors and the ways loads are applied to them (paper sections 4-5, NOTES 7).
+
+Every draw uses a ``torch.Generator`` so a seed fixes the sensor and all its recordings.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from sfmnet.data.recording import CalibrationRecording, EvaluationSweep, SensorTruth
+from sfmnet.calibration import calibration_matrix
+from sfmnet.linalg.frame import MirrorHint
+
+DTYPE = torch.float64
+
+
+@dataclass(frozen=True)
+class LinearSensor:
+    """``z = m S + o + e``, ``e ~ N(0, noise_std^2 I)``.
+
+    Attributes:
+        shape: ``S``, ``n x p`` (raw units per load unit).
+        offset: ``o``, ``p`` raw units.
+        noise_std: electrical noise per channel, raw units.
+    """
+
+    shape: torch.Tensor
+    offset: torch.Tensor
+    noise_std: float
+
+    def read(self, loads: torch.Tensor, generator: torch.Generator, repeats: int = 1) -> torch.Tensor:
+        """Readings of ``loads`` (``k x n``), each the mean of ``repeats`` noisy samples: ``k x p``."""
+        clean = loads @ self.shape + self.offset
+        noise = torch.randn(clean.shape, generator=generator, dtype=DTYPE) * self.noise_std / math.sqrt(repeats)
+        return clean + noise
+
+    def truth(self) -> SensorTruth:
+        return SensorTruth(matrix=calibration_matrix(self.shape), offset=self.offset.clone())
+
+
+@dataclass(frozen=True)
+class LoadApplicationErrors:
+    """How a physically applied load differs from the one the operator believes was applied.
+
+    Attributes:
+        angle_error_deg: std of the error in setting a known direction (rotary stage), degrees.
+        string_misalignment_deg: std of the pull direction's error per application, degrees.
+        out_of_plane_deg: std of the pull's tilt out of the sensing plane (scales the load by cos).
+        friction: relative std of the transmitted tension per application (pulley friction).
+        mass_error: relative std of each mass's true value against its label (fixed per mass).
+    """
+
+    angle_error_deg: float = 0.0
+    string_misalignment_deg: float = 0.0
+    out_of_plane_deg: float = 0.0
+    friction: float = 0.0
+    mass_error: float = 0.0
+
+
+def random_directions(count: int, dims: int, generator: torch.Generator) -> torch.Tensor:
+    """``count x dims`` unit vectors, uniform on the circle or sphere."""
+    vectors = torch.randn(count, dims, generator=generator, dtype=DTYPE)
+    return vectors / vectors.norm(dim=1, keepdim=True)
+
+
+def sweep_directions(count: int, dims: int) -> torch.Tensor:
+    """``count x dims`` unit vectors in the order of one continuous turn.
+
+    A full circle for ``dims == 2``; a Fibonacci spiral from pole to pole for ``dims == 3``.
+    """
+    step = torch.arange(count, dtype=DTYPE)
+    if dims == 2:
+        angle = 2 * math.pi * step / count
+        return torch.stack([angle.cos(), angle.sin()], dim=1)
+    z = 1 - 2 * (step + 0.5) / count
+    radius = (1 - z**2).sqrt()
+    azimuth = math.pi * (3 - math.sqrt(5)) * step
+    return torch.stack([radius * azimuth.cos(), radius * azimuth.sin(), z], dim=1)
+
+
+def perturb_directions(directions: torch.Tensor, std_rad: float, generator: torch.Generator) -> torch.Tensor:
+    """Tilt each unit vector by a random tangent step of std ``std_rad`` (radians)."""
+    if std_rad == 0:
+        return directions
+    step = torch.randn(directions.shape, generator=generator, dtype=DTYPE) * std_rad
+    tangent = step - (step * directions).sum(dim=1, keepdim=True) * directions
+    tilted = directions + tangent
+    return tilted / tilted.norm(dim=1, keepdim=True)
+
+
+def applied_loads(
+    directions: torch.Tensor,
+    masses: torch.Tensor,
+    errors: LoadApplicationErrors,
+    generator: torch.Generator,
+    set_directions: bool,
+) -> torch.Tensor:
+    """The loads really applied when the operator means ``masses[:, None] * directions``.
+
+    Args:
+        directions: ``k x n`` intended unit directions.
+        masses: ``k`` the true masses (load units) on each application.
+        errors: the load-application error model.
+        set_directions: the operator set these directions on a stage (adds ``angle_error_deg``).
+
+    Returns:
+        ``k x n`` true loads.
+    """
+    std_deg = math.hypot(errors.string_misalignment_deg, errors.angle_error_deg if set_directions else 0.0)
+    directions = perturb_directions(directions, math.radians(std_deg), generator)
+    k = len(masses)
+    tension = 1 + errors.friction * torch.randn(k, generator=generator, dtype=DTYPE)
+    tilt = torch.randn(k, generator=generator, dtype=DTYPE) * math.radians(errors.out_of_plane_deg)
+    return directions * (masses * tension * tilt.cos())[:, None]
+
+
+def true_masses(labels: list[float], errors: LoadApplicationErrors, generator: torch.Generator) -> dict[float, float]:
+    """Each labelled mass's true value, drawn once (the same weight is used throughout)."""
+    draws = torch.randn(len(labels), generator=generator, dtype=DTYPE) * errors.mass_error
+    return {label: label * (1 + float(d)) for label, d in zip(labels, draws)}
+
+
+def rotation_recording(
+    sensor: LinearSensor,
+    magnitude: float,
+    true_magnitude: float,
+    samples: int,
+    known_loads: int,
+    mirror_hint: bool,
+    errors: LoadApplicationErrors,
+    generator: torch.Generator,
+    motion_span: int | None = None,
+) -> CalibrationRecording:
+    """One mass turned through ``samples`` unknown orientations, then ``known_loads`` loads along the first axes.
+
+    ``motion_span`` (default ``n``) limits the unknown orientations to the first that many
+    axes: 1 gives collinear loads, 2 coplanar ones (a session that cannot calibrate).
+
+    The unknown rows come first; the known ones (axis-aligned, set on a stage) follow.
+    With ``mirror_hint``, the unknown sample whose load leans furthest along the last axis
+    is named with the sign of that component, as an operator would remember it.
+    """
+    n = sensor.shape.shape[0]
+    masses = torch.full((samples,), true_magnitude, dtype=DTYPE)
+    directions = random_directions(samples, n, generator)
+    directions[:, (motion_span or n) :] = 0
+    directions = directions / directions.norm(dim=1, keepdim=True)
+    unknown = applied_loads(directions, masses, errors, generator, set_directions=False)
+    axes = torch.eye(n, dtype=DTYPE)[:known_loads]
+    known_true = applied_loads(axes, masses[:known_loads], errors, generator, set_directions=True)
+    loads = torch.cat([unknown, known_true])
+    readings = sensor.read(loads, generator)
+    believed = torch.cat([torch.full_like(unknown, float("nan")), axes * magnitude])
+    hint = None
+    if mirror_hint:
+        row = int(unknown[:, -1].abs().argmax())
+        hint = MirrorHint(sample=row, axis=n - 1, sign=1 if unknown[row, -1] > 0 else -1)
+    return CalibrationRecording(readings=readings, loads=believed, magnitude=magnitude, mirror_hint=hint)
+
+
+def least_squares_recording(
+    sensor: LinearSensor,
+    masses: dict[float, float],
+    angle_step_deg: float,
+    repeats: int,
+    errors: LoadApplicationErrors,
+    generator: torch.Generator,
+) -> CalibrationRecording:
+    """The paper's least-squares protocol: every mass at every stage angle, readings averaged.
+
+    For ``n == 2`` the stage angles go round the circle in ``angle_step_deg`` steps; for
+    ``n == 3`` the same number of directions lie on a spiral over the sphere.
+
+    Args:
+        masses: label -> true value (see :func:`true_masses`); the labels are what the operator believes.
+    """
+    n = sensor.shape.shape[0]
+    count = max(1, round(360 / angle_step_deg))
+    directions = sweep_directions(count, n).repeat(len(masses), 1)
+    labelled = torch.tensor(list(masses), dtype=DTYPE).repeat_interleave(count)
+    actual = torch.tensor(list(masses.values()), dtype=DTYPE).repeat_interleave(count)
+    loads = applied_loads(directions, actual, errors, generator, set_directions=True)
+    readings = sensor.read(loads, generator, repeats=repeats)
+    return CalibrationRecording(readings=readings, loads=directions * labelled[:, None])
+
+
+def evaluation_sweeps(
+    sensor: LinearSensor, masses: list[float], samples_per_turn: int, generator: torch.Generator
+) -> list[EvaluationSweep]:
+    """Each test mass turned once round (exact loads, noisy readings): the reference for accuracy and precision."""
+    n = sensor.shape.shape[0]
+    directions = sweep_directions(samples_per_turn, n)
+    sweeps = []
+    for mass in masses:
+        loads = directions * mass
+        sweeps.append(EvaluationSweep(magnitude=mass, readings=sensor.read(loads, generator), loads=loads))
+    return sweeps

@@ -1,0 +1,70 @@
+"""Figures a person looks at: the recovered motion (paper Figs. 4 and 5) and the singular-value spectrum."""
+
+from __future__ import annotations
+
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import torch  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+
+def motion_figure(motion: torch.Tensor, magnitude: float, unit: str, title: str) -> Figure | None:
+    """The recovered loads: a polar plot for 2 axes (Fig. 4), points on the sphere for 3 (Fig. 5).
+
+    Args:
+        motion: ``f x n`` recovered loads of the unknown-orientation samples.
+        magnitude: the true constant magnitude, drawn for reference.
+
+    Returns:
+        The figure, or None for other ``n``.
+    """
+    n = motion.shape[1]
+    m = motion.detach().cpu()
+    if n == 2:
+        fig = plt.figure(figsize=(5, 5))
+        ax = fig.add_subplot(projection="polar")
+        angle = torch.atan2(m[:, 1], m[:, 0])
+        ax.plot(angle, m.norm(dim=1), "o", markersize=3, label="recovered")
+        circle = torch.linspace(0, 2 * math.pi, 200)
+        ax.plot(circle, torch.full_like(circle, magnitude), "k--", linewidth=0.8, label=f"{magnitude:g} {unit}")
+        ax.set_rmin(0)
+        ax.legend(loc="lower right", fontsize=8)
+    elif n == 3:
+        fig = plt.figure(figsize=(5.5, 5))
+        ax = fig.add_subplot(projection="3d")
+        u, v = torch.meshgrid(torch.linspace(0, 2 * math.pi, 24), torch.linspace(0, math.pi, 12), indexing="ij")
+        ax.plot_wireframe(
+            magnitude * u.cos() * v.sin(), magnitude * u.sin() * v.sin(), magnitude * v.cos(),
+            color="0.8", linewidth=0.5,
+        )
+        ax.scatter(m[:, 0], m[:, 1], m[:, 2], s=6)
+        ax.set_xlabel(f"fx ({unit})")
+        ax.set_ylabel(f"fy ({unit})")
+        ax.set_zlabel(f"fz ({unit})")
+        ax.set_box_aspect((1, 1, 1))
+    else:
+        return None
+    fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def spectrum_figure(singular_values: torch.Tensor, rank: int, title: str) -> Figure:
+    """Singular values on a log scale, the kept rank marked; the gap after it says how well the data is rank n."""
+    s = singular_values.detach().cpu()
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    index = torch.arange(1, len(s) + 1)
+    colours = ["tab:blue" if i <= rank else "tab:gray" for i in index.tolist()]
+    ax.bar(index, s.clamp_min(1e-300), color=colours)
+    ax.set_yscale("log")
+    ax.axvline(rank + 0.5, color="tab:red", linestyle="--", linewidth=1, label=f"rank {rank}")
+    ax.set_xlabel("index")
+    ax.set_ylabel("singular value")
+    ax.set_xticks(index)
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return fig

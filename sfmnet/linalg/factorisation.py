@@ -1,0 +1,193 @@
+"""Closed-form shape from motion (paper section 4, eqs. 5-11; NOTES sections 2 and 4).
+
+Conventions used across sfmnet (row vectors, as in the paper):
+
+- ``Z``: readings, ``f x p`` (f samples, p raw channels).
+- ``M``: motion, ``f x n`` (one load per row, in load units).
+- ``S``: shape, ``n x p``; the model is ``Z = M S (+ 1 o^T)``  (eq. 5).
+- The calibration matrix ``C = pinv(S)^T`` is ``n x p``: ``load = C (z - o)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from sfmnet.errors import SfmnetError
+
+# Singular values below this fraction of the largest are treated as numerically zero.
+RANK_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class AffineFactors:
+    """Rank-n factors of the readings, known only up to an invertible n x n transform (eq. 9).
+
+    Attributes:
+        motion: ``M^ = U* Sigma*^(1/2)``, ``f x n`` (eq. 8).
+        shape: ``S^ = Sigma*^(1/2) V*^T``, ``n x p`` (eq. 8).
+        singular_values: all ``min(f, p)`` singular values of the (centred) readings.
+        mean: the column mean that was removed, ``p`` (zeros when not centred).
+    """
+
+    motion: torch.Tensor
+    shape: torch.Tensor
+    singular_values: torch.Tensor
+    mean: torch.Tensor
+
+
+def truncated_svd_factors(readings: torch.Tensor, rank: int, centre: bool = False) -> AffineFactors:
+    """Best rank-n factorisation of the readings by truncated SVD (paper eqs. 6-8).
+
+    Args:
+        readings: ``Z``, ``f x p``.
+        rank: ``n``, the number of load dimensions.
+        centre: remove the column mean first (for offsets, NOTES 4, and for PCA).
+
+    Returns:
+        The affine factors ``M^`` (``f x n``) and ``S^`` (``n x p``) with ``M^ S^ = Z*``.
+
+    Raises:
+        SfmnetError: if there are fewer samples or channels than ``rank``, or the
+            readings do not span ``rank`` dimensions (e.g. all loads collinear).
+    """
+    f, p = readings.shape
+    if p < rank:
+        raise SfmnetError(
+            f"the sensor has {p} channels but {rank} load axes are asked for: "
+            f"a calibration needs at least as many channels as load axes"
+        )
+    if f < rank:
+        raise SfmnetError(
+            f"only {f} samples for a rank-{rank} factorisation: record at least {rank} (many more is better)"
+        )
+    mean = readings.mean(dim=0) if centre else torch.zeros(p, dtype=readings.dtype)
+    u, s, vt = torch.linalg.svd(readings - mean, full_matrices=False)
+    if s[rank - 1] <= RANK_TOLERANCE * s[0]:
+        raise SfmnetError(
+            f"the readings span fewer than {rank} dimensions (singular value {rank} is "
+            f"{float(s[rank - 1] / s[0]):.1e} of the largest): the loads are collinear or coplanar; "
+            f"turn the mass through orientations that span all {rank} load axes"
+        )
+    root = s[:rank].sqrt()
+    return AffineFactors(
+        motion=u[:, :rank] * root,
+        shape=root[:, None] * vt[:rank],
+        singular_values=s,
+        mean=mean,
+    )
+
+
+def quadratic_design(points: torch.Tensor) -> torch.Tensor:
+    """Rows ``[y_a y_b]`` for ``a <= b`` (doubled off the diagonal): ``y Q y^T = design @ vech(Q)``.
+
+    Args:
+        points: ``f x n``.
+
+    Returns:
+        ``f x n(n+1)/2``, the generalisation of the paper's ``[m1^2, 2 m1 m2, m2^2]`` (eq. 11).
+    """
+    n = points.shape[1]
+    rows, cols = torch.triu_indices(n, n)
+    weight = torch.where(rows == cols, 1.0, 2.0).to(points.dtype)
+    return points[:, rows] * points[:, cols] * weight
+
+
+def symmetric_from_upper(values: torch.Tensor, n: int) -> torch.Tensor:
+    """Inverse of the packing used by :func:`quadratic_design`: ``n(n+1)/2`` values to ``n x n``."""
+    rows, cols = torch.triu_indices(n, n)
+    q = torch.zeros(n, n, dtype=values.dtype)
+    q[rows, cols] = values
+    q[cols, rows] = values
+    return q
+
+
+def metric_gram(motion: torch.Tensor, magnitude: float) -> torch.Tensor:
+    """Solve the metric constraint ``m^_j Q m^_j^T = F^2`` for ``Q = B B^T`` by least squares (eq. 11).
+
+    Args:
+        motion: affine motion ``M^``, ``f x n``.
+        magnitude: ``F``, the constant load magnitude (load units).
+
+    Returns:
+        ``Q``, ``n x n``, symmetric positive definite.
+
+    Raises:
+        SfmnetError: with fewer samples than the ``n(n+1)/2`` unknowns, or when ``Q`` is not
+            positive definite (the motion does not span the space).
+    """
+    f, n = motion.shape
+    unknowns = n * (n + 1) // 2
+    if f < unknowns:
+        raise SfmnetError(
+            f"only {f} samples for {unknowns} unknowns of the metric constraint: "
+            f"record at least {unknowns} orientations (dozens give a good calibration)"
+        )
+    design = quadratic_design(motion)
+    target = torch.full((f, 1), magnitude**2, dtype=motion.dtype)
+    q = symmetric_from_upper(torch.linalg.lstsq(design, target).solution[:, 0], n)
+    return positive_definite_or_raise(q)
+
+
+def positive_definite_or_raise(q: torch.Tensor) -> torch.Tensor:
+    """Return ``q`` if it is positive definite, else raise the error NOTES 2 step 4 asks for."""
+    eigenvalues = torch.linalg.eigvalsh(q)
+    if eigenvalues[0] <= RANK_TOLERANCE * eigenvalues[-1].abs():
+        raise SfmnetError(
+            "the metric constraint has no positive-definite solution (Q eigenvalues "
+            f"{[round(float(v), 6) for v in eigenvalues]}): the orientations do not span the load "
+            "space or the magnitude is not constant; record more varied orientations of one mass"
+        )
+    return q
+
+
+def metric_upgrade(factors: AffineFactors, gram: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Apply ``B`` with ``B B^T = Q``: ``M = M^ B``, ``S = B^-1 S^`` (eq. 10).
+
+    Returns:
+        ``(M, S)``, right up to an orthogonal transform of the load frame.
+    """
+    b = torch.linalg.cholesky(gram)
+    return factors.motion @ b, torch.linalg.solve_triangular(b, factors.shape, upper=False)
+
+
+@dataclass(frozen=True)
+class EllipsoidFit:
+    """Centre and metric of the motion when the readings carry unknown offsets (NOTES 4).
+
+    Attributes:
+        centre: ``c``, ``n``, in the coordinates of the affine motion.
+        gram: ``Q``, ``n x n``, so that ``(y - c) Q (y - c)^T = F^2``.
+    """
+
+    centre: torch.Tensor
+    gram: torch.Tensor
+
+
+def fit_ellipsoid(points: torch.Tensor, magnitude: float) -> EllipsoidFit:
+    """Fit ``y A y^T + b y^T = 1`` by least squares, then ``c = -A^-1 b / 2``, ``Q = F^2 A / (1 + c A c^T)``.
+
+    Args:
+        points: the centred readings projected on the principal subspace, ``f x n``.
+        magnitude: ``F``.
+
+    Raises:
+        SfmnetError: too few samples for the ``n(n+1)/2 + n`` unknowns, or no ellipsoid.
+    """
+    f, n = points.shape
+    unknowns = n * (n + 1) // 2 + n
+    if f < unknowns:
+        raise SfmnetError(
+            f"only {f} samples for {unknowns} unknowns of the metric constraint with offsets: "
+            f"record at least {unknowns} orientations (dozens give a good calibration)"
+        )
+    design = torch.cat([quadratic_design(points), points], dim=1)
+    ones = torch.ones(f, 1, dtype=points.dtype)
+    solution = torch.linalg.lstsq(design, ones).solution[:, 0]
+    a = symmetric_from_upper(solution[: n * (n + 1) // 2], n)
+    b = solution[n * (n + 1) // 2 :]
+    a = positive_definite_or_raise(a)
+    centre = -torch.linalg.solve(a, b) / 2
+    scale = 1 + centre @ a @ centre
+    return EllipsoidFit(centre=centre, gram=positive_definite_or_raise(magnitude**2 * a / scale))

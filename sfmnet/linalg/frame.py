@@ -1,0 +1,92 @@
+"""The load frame from known loads: orthogonal Procrustes with the mirror made explicit (NOTES 3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from sfmnet.errors import SfmnetError
+
+# Singular values of the known loads below this fraction of the largest count as missing directions.
+SPAN_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class MirrorHint:
+    """One bit that tells a frame from its mirror image when only ``n - 1`` loads are known.
+
+    The load on sample ``sample`` (an index into the unknown-orientation readings) has a
+    component along axis ``axis`` whose sign is ``sign`` (+1 or -1). Any rough knowledge
+    serves: "that pull was roughly towards +y".
+    """
+
+    sample: int
+    axis: int
+    sign: int
+
+
+def orthogonal_procrustes(source: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The orthogonal ``R`` (``n x n``) minimising ``|source R - target|_F``: ``R = U V^T`` of ``svd(source^T target)``.
+
+    Args:
+        source: ``k x n`` loads in the recovered frame.
+        target: ``k x n`` the same loads in the user's frame.
+    """
+    u, _, vt = torch.linalg.svd(source.T @ target)
+    return u @ vt
+
+
+def frame_rotation(
+    estimated_loads: torch.Tensor,
+    known_loads: torch.Tensor,
+    hint_motion: torch.Tensor | None = None,
+    hint: MirrorHint | None = None,
+) -> torch.Tensor:
+    """The orthogonal transform ``R`` that takes recovered loads into the frame of the known loads.
+
+    With ``k >= n`` spanning loads, Procrustes fixes ``R`` completely. With loads spanning
+    ``n - 1`` directions, ``R`` is fixed only up to a mirror across their span; the caller's
+    :class:`MirrorHint` picks the side.
+
+    Args:
+        estimated_loads: ``k x n``, the known samples' loads in the recovered frame.
+        known_loads: ``k x n``, the same loads as the user knows them.
+        hint_motion: ``1 x n``, the recovered load of the hint sample (with ``hint``).
+        hint: which side of the mirror the hint sample lies on.
+
+    Returns:
+        ``R``, ``n x n`` orthogonal, so that ``M <- M R`` and ``S <- R^T S``.
+
+    Raises:
+        SfmnetError: loads that span fewer than ``n - 1`` directions, or ``n - 1`` without a hint.
+    """
+    n = known_loads.shape[1]
+    singular = torch.linalg.svdvals(known_loads)
+    span = int((singular > SPAN_TOLERANCE * singular[0]).sum()) if len(singular) else 0
+    if span < n - 1:
+        raise SfmnetError(
+            f"the known loads span {span} of {n} load directions: give at least {n - 1} "
+            f"non-parallel known loads (and a mirror hint), or {n} to fix the frame alone"
+        )
+    u, _, vt = torch.linalg.svd(estimated_loads.T @ known_loads)
+    rotation = u @ vt
+    if span == n:
+        return rotation
+    if hint is None or hint_motion is None:
+        raise SfmnetError(
+            f"{span} known loads fix the {n}-axis frame only up to a mirror image: set "
+            "frame.mirror_hint={sample: <row>, axis: <axis>, sign: <+1|-1>} (the rough sign of one "
+            f"load component you know), or give {n} non-coplanar known loads"
+        )
+    if not 0 <= hint.axis < n or hint.sign not in (-1, 1):
+        raise SfmnetError(
+            f"mirror_hint needs an axis in 0..{n - 1} and a sign of +1 or -1, got axis {hint.axis}, sign {hint.sign}"
+        )
+    component = float((hint_motion @ rotation)[0, hint.axis])
+    if component * hint.sign < 0:
+        # Reflect the direction the known loads leave free (last singular vector).
+        flip = torch.eye(n, dtype=rotation.dtype)
+        flip[-1, -1] = -1
+        rotation = u @ flip @ vt
+    return rotation

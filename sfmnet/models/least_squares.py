@@ -1,0 +1,40 @@
+"""Least-squares calibration: the traditional baseline, every load known (paper section 5, NOTES 7)."""
+
+from __future__ import annotations
+
+import torch
+
+from sfmnet.data.recording import CalibrationRecording
+from sfmnet.errors import SfmnetError
+from sfmnet.linalg.least_squares import least_squares_shape
+from sfmnet.models.linear_calibrator import Batch, LinearCalibrator
+from sfmnet.models.losses import reconstruction_loss
+
+
+class LeastSquaresCalibration(LinearCalibrator):
+    """``S, o = argmin |Z - F S - 1 o^T|^2`` with the loads ``F`` all known.
+
+    The closed form is already the minimum, so the trainer's steps only confirm it; the model
+    runs through the same trainer so that both methods are logged and saved the same way.
+    """
+
+    name = "least_squares"
+    recording = "least_squares"
+
+    def __init__(self, estimate_offset: bool = False) -> None:
+        super().__init__(estimate_offset=estimate_offset)
+
+    def initialise(self, recording: CalibrationRecording) -> None:
+        if not bool(recording.known.all()):
+            raise SfmnetError(
+                f"least squares needs every load known, but {int((~recording.known).sum())} rows have none"
+            )
+        shape, offset = least_squares_shape(recording.loads, recording.readings, self.estimate_offset)
+        self.singular_values = torch.linalg.svdvals(recording.readings - offset)
+        self.set_solution(shape, offset, recording.readings)
+
+    def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
+        _, readings, loads = batch
+        terms = {"reconstruction": reconstruction_loss(readings, loads, self.shape, self.offset, self.scale2)}
+        terms["loss"] = terms["reconstruction"]
+        return terms

@@ -1,0 +1,73 @@
+"""What every calibration model shares: a shape ``S`` and offsets ``o`` learnt from one recording."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import torch
+from torch import nn
+
+from sfmnet.calibration import calibration_matrix
+from sfmnet.data.recording import CalibrationRecording
+
+Batch = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+
+
+class LinearCalibrator(nn.Module, ABC):
+    """``Z = M S + 1 o^T``; the calibration is ``load = pinv(S)^T (z - o)``.
+
+    The parameters are created by :meth:`initialise`, once the data's size is known.
+
+    Attributes:
+        name: the method's name in results and file names.
+        recording: the name of the recording this model learns from.
+        estimate_offset: learn ``o`` (else the readings are taken as tared, ``o = 0``).
+    """
+
+    name: str
+    recording: str
+
+    def __init__(self, estimate_offset: bool) -> None:
+        super().__init__()
+        self.estimate_offset = estimate_offset
+        self.register_parameter("shape", None)
+        self.register_parameter("offset", None)
+        self.register_buffer("scale2", None)
+        self.singular_values: torch.Tensor | None = None
+        # False while the load frame is arbitrary (shape from motion without known loads).
+        self.frame_fixed = True
+
+    @abstractmethod
+    def initialise(self, recording: CalibrationRecording) -> None:
+        """Create the parameters from the closed-form solution: the first step of fitting."""
+
+    @abstractmethod
+    def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """Loss terms of one batch ``(index, readings, loads)``; key ``"loss"`` is minimised."""
+
+    def finalise(self, recording: CalibrationRecording) -> None:
+        """Anything left after gradient training (e.g. fixing the frame). Default: nothing."""
+
+    def set_solution(self, shape: torch.Tensor, offset: torch.Tensor, readings: torch.Tensor) -> None:
+        self.shape = dense_parameter(shape)
+        self.offset = dense_parameter(offset, requires_grad=self.estimate_offset)
+        self.scale2 = (readings - readings.mean(dim=0)).pow(2).sum(dim=1).mean()
+
+    def calibration_matrix(self) -> torch.Tensor:
+        """``n x p``: ``load = C (z - o)``."""
+        return calibration_matrix(self.shape.detach())
+
+    def motion_of(self, readings: torch.Tensor) -> torch.Tensor:
+        """The least-squares loads of readings under the current shape, ``f x n``."""
+        return (readings - self.offset.detach()) @ self.calibration_matrix().T
+
+    def residual_rms(self, recording: CalibrationRecording) -> float:
+        """RMS of ``Z - M S - o`` with ``M`` the least-squares loads: what the rank-n model leaves unexplained."""
+        motion = self.motion_of(recording.readings)
+        residual = recording.readings - motion @ self.shape.detach() - self.offset.detach()
+        return float(residual.pow(2).mean().sqrt())
+
+
+def dense_parameter(value: torch.Tensor, requires_grad: bool = True) -> nn.Parameter:
+    """A parameter with its own contiguous storage (L-BFGS flattens gradients with ``view``)."""
+    return nn.Parameter(value.detach().clone(memory_format=torch.contiguous_format), requires_grad=requires_grad)

@@ -1,0 +1,71 @@
+"""The one LightningModule: fits any :class:`LinearCalibrator` (closed form first, then gradient steps)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import lightning as L
+import torch
+
+from sfmnet.data.recording import CalibrationRecording
+from sfmnet.errors import SfmnetError
+from sfmnet.models.linear_calibrator import LinearCalibrator
+
+OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimizer]
+
+
+class LearnerModule(L.LightningModule):
+    """Thin Lightning glue over a model that owns its math.
+
+    Fitting runs ``model.initialise`` (the closed form) in ``setup``, gradient steps on
+    ``model.loss`` for the trainer's epochs, and ``model.finalise`` at the end. Every epoch it
+    logs the loss terms, the singular values of the shape and, for simulated data, the
+    relative error of the calibration matrix.
+
+    Args:
+        model: the calibration model.
+        optimizer: builds the optimiser from the parameters (a Hydra ``_partial_``).
+    """
+
+    def __init__(self, model: LinearCalibrator, optimizer: OptimizerFactory) -> None:
+        super().__init__()
+        self.model = model
+        self.optimizer_factory = optimizer
+
+    @property
+    def recording(self) -> CalibrationRecording:
+        data = self.trainer.datamodule.data
+        if self.model.recording not in data.recordings:
+            raise SfmnetError(
+                f"{type(self.model).__name__} learns from a '{self.model.recording}' recording, which this data "
+                f"does not have (it has {', '.join(data.recordings)}): pick a model that fits the data"
+            )
+        return data.recordings[self.model.recording]
+
+    def setup(self, stage: str) -> None:
+        if self.model.shape is None:
+            self.model.initialise(self.recording)
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return self.optimizer_factory([p for p in self.parameters() if p.requires_grad])
+
+    def training_step(self, batch: dict[str, tuple[torch.Tensor, ...]], batch_idx: int) -> torch.Tensor:
+        terms = self.model.loss(batch[self.model.recording])
+        self.log_dict({f"train/{name}": value.detach() for name, value in terms.items()}, on_step=False, on_epoch=True)
+        self.log("loss", terms["loss"].detach(), on_step=False, on_epoch=True, prog_bar=True, logger=False)
+        return terms["loss"]
+
+    def on_train_epoch_end(self) -> None:
+        singular = torch.linalg.svdvals(self.model.shape.detach())
+        self.log_dict({f"shape/singular_value_{i}": value for i, value in enumerate(singular)})
+        truth = self.trainer.datamodule.data.truth
+        if truth is not None:
+            self.log("error/matrix_relative", matrix_error(self.model.calibration_matrix(), truth.matrix), prog_bar=True)
+
+    def on_fit_end(self) -> None:
+        self.model.finalise(self.recording)
+
+
+def matrix_error(matrix: torch.Tensor, true_matrix: torch.Tensor) -> torch.Tensor:
+    """``|C - C_true|_F / |C_true|_F``."""
+    return (matrix - true_matrix).norm() / true_matrix.norm()

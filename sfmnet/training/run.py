@@ -1,0 +1,187 @@
+"""One training run: build the data and each method from the config, fit them through one Trainer setup, write results.
+
+Run directory layout::
+
+    calibration.json        the main method's calibration (load = matrix @ (reading - offset))
+    metrics.json            flat dict of final figures (baselines prefixed "<name>/")
+    figures/*.png           recovered motion and singular-value spectrum
+    tensorboard/<method>/   event files: losses per epoch, figures
+    checkpoints/<method>/   last.ckpt
+    baselines/<name>/calibration.json
+    .hydra/config.yaml      the resolved config (written by Hydra)
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+import lightning as L
+import torch
+from hydra.utils import instantiate
+from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.loggers import TensorBoardLogger
+from matplotlib import pyplot as plt
+from omegaconf import DictConfig
+
+from sfmnet.calibration import Calibration
+from sfmnet.data.calibration_datamodule import CalibrationDataModule
+from sfmnet.data.recording import CalibrationRecording
+from sfmnet.errors import SfmnetError
+from sfmnet.eval.figures import motion_figure, spectrum_figure
+from sfmnet.eval.rotation_protocol import evaluate_sweeps
+from sfmnet.io import write_json_atomic
+from sfmnet.models.linear_calibrator import LinearCalibrator
+from sfmnet.training.learner_module import LearnerModule, matrix_error
+from sfmnet.training.progress import ProgressBar
+
+RESULT_FILES = ("metrics.json", "calibration.json")
+
+
+@dataclass
+class MethodResult:
+    """What one fitted method leaves behind."""
+
+    name: str
+    calibration: Calibration
+    metrics: dict[str, float]
+
+
+def quiet_lightning() -> None:
+    """Keep the console to the progress bar and our summary; Lightning's notices go to the log file."""
+    for name in ("lightning.pytorch.utilities.rank_zero", "lightning.pytorch.accelerators.cuda", "lightning.fabric"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+    warnings.filterwarnings("ignore", message=".*The number of training batches.*")
+    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
+
+
+def refuse_existing_results(run_dir: Path) -> None:
+    existing = [name for name in RESULT_FILES if (run_dir / name).exists()]
+    if existing:
+        raise SfmnetError(
+            f"{run_dir} already holds a run ({', '.join(existing)}): give a new hydra.run.dir so nothing is overwritten"
+        )
+
+
+def fit_method(
+    name: str,
+    model: LinearCalibrator,
+    cfg: DictConfig,
+    datamodule: CalibrationDataModule,
+    run_dir: Path,
+) -> MethodResult:
+    """Fit one model through a Trainer built from ``cfg.trainer``, then evaluate and plot it."""
+    module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer))
+    logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version=name, default_hp_metric=False)
+    checkpoint = ModelCheckpoint(dirpath=run_dir / "checkpoints" / name, save_last=True, save_top_k=0)
+    trainer: L.Trainer = instantiate(cfg.trainer, logger=logger, callbacks=[checkpoint, ProgressBar()], default_root_dir=str(run_dir))
+    started = time.perf_counter()
+    trainer.fit(module, datamodule=datamodule)
+    seconds = time.perf_counter() - started
+
+    data = datamodule.data
+    recording = data.recordings[model.recording]
+    rank = recording.rank
+    singular = model.singular_values
+    calibration = Calibration(
+        matrix=model.calibration_matrix(),
+        offset=model.offset.detach().clone(),
+        channels=data.channels,
+        axes=data.axes,
+        singular_values=singular.tolist(),
+        residual_rms=model.residual_rms(recording),
+        extra={"method": name, "load_unit": data.load_unit, "frame": frame_description(model)},
+    )
+    metrics: dict[str, float] = {
+        "residual_rms": calibration.residual_rms,
+        "fit_seconds": seconds,
+        "epochs": float(trainer.current_epoch),
+    }
+    if len(singular) > rank:
+        metrics["rank_gap"] = float(singular[rank - 1] / singular[rank])
+    for key, value in trainer.callback_metrics.items():
+        if key.startswith("train/"):
+            metrics[key] = float(value)
+    if data.truth is not None:
+        metrics["matrix_error_relative"] = float(matrix_error(calibration.matrix, data.truth.matrix))
+        metrics["offset_error_rms"] = float((calibration.offset - data.truth.offset).pow(2).mean().sqrt())
+    metrics.update(evaluate_sweeps(calibration, data.evaluations, cfg.eval.smoothing_window))
+    log_figures(name, model, recording, data.load_unit, singular, run_dir, logger, trainer.global_step)
+    return MethodResult(name=name, calibration=calibration, metrics=metrics)
+
+
+def frame_description(model: LinearCalibrator) -> str:
+    return "known_loads" if model.frame_fixed else "arbitrary (no known loads: correct up to an orthogonal transform)"
+
+
+def log_figures(
+    name: str,
+    model: LinearCalibrator,
+    recording: CalibrationRecording,
+    unit: str,
+    singular: torch.Tensor,
+    run_dir: Path,
+    logger: TensorBoardLogger,
+    step: int,
+) -> None:
+    """Save each figure as a PNG in the run directory and in TensorBoard."""
+    figures = {"spectrum": spectrum_figure(singular, recording.rank, f"{name}: singular values of the readings")}
+    motion = getattr(model, "motion", None)
+    if motion is not None:
+        unknown = motion.detach()[~recording.known]
+        figure = motion_figure(unknown, recording.magnitude, unit, f"{name}: recovered motion")
+        if figure is not None:
+            figures["motion"] = figure
+    (run_dir / "figures").mkdir(exist_ok=True)
+    for tag, figure in figures.items():
+        figure.savefig(run_dir / "figures" / f"{name}_{tag}.png", dpi=110)
+        if logger.experiment is not None:
+            logger.experiment.add_figure(f"{name}/{tag}", figure, global_step=step, close=False)
+        plt.close(figure)
+
+
+def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
+    """Run the configured experiment into ``run_dir``; return the flat metrics also written to ``metrics.json``."""
+    run_dir = Path(run_dir)
+    refuse_existing_results(run_dir)
+    quiet_lightning()
+    L.seed_everything(cfg.seed, workers=True, verbose=False)
+    datamodule: CalibrationDataModule = instantiate(cfg.data)
+    datamodule.setup("fit")
+
+    main_model: LinearCalibrator = instantiate(cfg.model)
+    models = {main_model.name: main_model}
+    models.update({name: instantiate(model_cfg) for name, model_cfg in cfg.get("baselines", {}).items()})
+    results = {name: fit_method(name, model, cfg, datamodule, run_dir) for name, model in models.items()}
+
+    main = results[main_model.name]
+    main.calibration.save(run_dir / "calibration.json")
+    metrics = dict(main.metrics)
+    for name, result in results.items():
+        if result is not main:
+            result.calibration.save(run_dir / "baselines" / name / "calibration.json")
+            metrics.update({f"{name}/{key}": value for key, value in result.metrics.items()})
+    write_json_atomic(run_dir / "metrics.json", metrics)
+
+    print(f"\nrun directory: {run_dir}")
+    for result in results.values():
+        print(headline(result, datamodule.data.load_unit))
+    if cfg.get("report"):
+        print(instantiate(cfg.report)({n: r.metrics for n, r in results.items()}, datamodule.data, run_dir))
+    print(f"inspect: tensorboard --logdir {run_dir}")
+    return metrics
+
+
+def headline(result: MethodResult, unit: str) -> str:
+    m = result.metrics
+    parts = []
+    if "eval/max_error_pct" in m:
+        parts.append(f"worst |load| error {m['eval/max_error_pct']:.3f} %, worst smoothed std {m['eval/max_std_dev']:.3f} {unit}")
+    if "matrix_error_relative" in m:
+        parts.append(f"matrix error {100 * m['matrix_error_relative']:.3f} % (vs simulated truth)")
+    if "rank_gap" in m:
+        parts.append(f"rank gap {m['rank_gap']:.1f}")
+    return f"  {result.name}: " + ", ".join(parts)
