@@ -29,9 +29,10 @@ errors print one line and exit with status 2; set SFMNET_DEBUG=1 for the full tr
 
 
 def config_dir() -> str:
-    """The configs: ``conf/`` of a checkout, else the copy installed inside the package."""
-    checkout = Path(__file__).resolve().parent.parent / "conf"
-    return str(checkout) if (checkout / "train.yaml").is_file() else "pkg://sfmnet.conf"
+    """The configs: ``conf/`` of a checkout, else the copy a wheel installs as ``sfmnet/conf``."""
+    package = Path(__file__).resolve().parent
+    checkout = package.parent / "conf"
+    return str(checkout if (checkout / "train.yaml").is_file() else package / "conf")
 
 
 def debug_enabled() -> bool:

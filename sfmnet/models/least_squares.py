@@ -31,10 +31,14 @@ class LeastSquaresCalibration(LinearCalibrator):
             )
         shape, offset = least_squares_shape(recording.loads, recording.readings, self.estimate_offset)
         self.singular_values = torch.linalg.svdvals(recording.readings - offset)
-        self.set_solution(shape, offset, recording.readings)
+        self.set_solution(shape, offset, recording.readings, load_scale=float(recording.loads.norm(dim=1).max()))
 
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         _, readings, loads = batch
-        terms = {"reconstruction": reconstruction_loss(readings, loads, self.shape, self.offset, self.scale2)}
+        terms = {
+            "reconstruction": reconstruction_loss(
+                readings / self.reading_scale, loads / self.load_scale, self.shape, self.offset
+            )
+        }
         terms["loss"] = terms["reconstruction"]
         return terms

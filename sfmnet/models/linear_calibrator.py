@@ -16,12 +16,17 @@ Batch = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 class LinearCalibrator(nn.Module, ABC):
     """``Z = M S + 1 o^T``; the calibration is ``load = pinv(S)^T (z - o)``.
 
-    The parameters are created by :meth:`initialise`, once the data's size is known.
+    Parameters live in dimensionless units, readings divided by ``reading_scale`` (RMS norm
+    of the centred readings) and loads by ``load_scale`` (the load magnitude), so every
+    parameter is of order one: a gradient optimiser then sees a well-conditioned problem
+    whatever the sensor's units. They are created by :meth:`initialise`, once the data's
+    size is known.
 
     Attributes:
         name: the method's name in results and file names.
         recording: the name of the recording this model learns from.
         estimate_offset: learn ``o`` (else the readings are taken as tared, ``o = 0``).
+        frame_fixed: False while the load frame is arbitrary (no known loads).
     """
 
     name: str
@@ -32,9 +37,9 @@ class LinearCalibrator(nn.Module, ABC):
         self.estimate_offset = estimate_offset
         self.register_parameter("shape", None)
         self.register_parameter("offset", None)
-        self.register_buffer("scale2", None)
+        self.register_buffer("reading_scale", None)
+        self.register_buffer("load_scale", None)
         self.singular_values: torch.Tensor | None = None
-        # False while the load frame is arbitrary (shape from motion without known loads).
         self.frame_fixed = True
 
     @abstractmethod
@@ -48,23 +53,32 @@ class LinearCalibrator(nn.Module, ABC):
     def finalise(self, recording: CalibrationRecording) -> None:
         """Anything left after gradient training (e.g. fixing the frame). Default: nothing."""
 
-    def set_solution(self, shape: torch.Tensor, offset: torch.Tensor, readings: torch.Tensor) -> None:
-        self.shape = dense_parameter(shape)
-        self.offset = dense_parameter(offset, requires_grad=self.estimate_offset)
-        self.scale2 = (readings - readings.mean(dim=0)).pow(2).sum(dim=1).mean()
+    def set_solution(self, shape: torch.Tensor, offset: torch.Tensor, readings: torch.Tensor, load_scale: float) -> None:
+        """Store a solution given in physical units (``S``: ``n x p``, ``o``: ``p``)."""
+        self.reading_scale = (readings - readings.mean(dim=0)).pow(2).sum(dim=1).mean().sqrt()
+        self.load_scale = torch.tensor(float(load_scale), dtype=readings.dtype)
+        self.shape = dense_parameter(shape * self.load_scale / self.reading_scale)
+        self.offset = dense_parameter(offset / self.reading_scale, requires_grad=self.estimate_offset)
+
+    def physical_shape(self) -> torch.Tensor:
+        """``S`` in raw units per load unit, ``n x p``."""
+        return self.shape.detach() * self.reading_scale / self.load_scale
+
+    def physical_offset(self) -> torch.Tensor:
+        """``o`` in raw units, ``p``."""
+        return self.offset.detach() * self.reading_scale
 
     def calibration_matrix(self) -> torch.Tensor:
         """``n x p``: ``load = C (z - o)``."""
-        return calibration_matrix(self.shape.detach())
+        return calibration_matrix(self.physical_shape())
 
     def motion_of(self, readings: torch.Tensor) -> torch.Tensor:
-        """The least-squares loads of readings under the current shape, ``f x n``."""
-        return (readings - self.offset.detach()) @ self.calibration_matrix().T
+        """The least-squares loads of readings under the current shape, ``f x n`` load units."""
+        return (readings - self.physical_offset()) @ self.calibration_matrix().T
 
     def residual_rms(self, recording: CalibrationRecording) -> float:
         """RMS of ``Z - M S - o`` with ``M`` the least-squares loads: what the rank-n model leaves unexplained."""
-        motion = self.motion_of(recording.readings)
-        residual = recording.readings - motion @ self.shape.detach() - self.offset.detach()
+        residual = recording.readings - self.motion_of(recording.readings) @ self.physical_shape() - self.physical_offset()
         return float(residual.pow(2).mean().sqrt())
 
 

@@ -34,6 +34,7 @@ from sfmnet.eval.figures import motion_figure, spectrum_figure
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.io import write_json_atomic
 from sfmnet.models.linear_calibrator import LinearCalibrator
+from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import LearnerModule, matrix_error
 from sfmnet.training.progress import ProgressBar
 
@@ -77,7 +78,8 @@ def fit_method(
     module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer))
     logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version=name, default_hp_metric=False)
     checkpoint = ModelCheckpoint(dirpath=run_dir / "checkpoints" / name, save_last=True, save_top_k=0)
-    trainer: L.Trainer = instantiate(cfg.trainer, logger=logger, callbacks=[checkpoint, ProgressBar()], default_root_dir=str(run_dir))
+    callbacks = [checkpoint, ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else [checkpoint]
+    trainer: L.Trainer = instantiate(cfg.trainer, logger=logger, callbacks=callbacks, default_root_dir=str(run_dir))
     started = time.perf_counter()
     trainer.fit(module, datamodule=datamodule)
     seconds = time.perf_counter() - started
@@ -88,7 +90,7 @@ def fit_method(
     singular = model.singular_values
     calibration = Calibration(
         matrix=model.calibration_matrix(),
-        offset=model.offset.detach().clone(),
+        offset=model.physical_offset(),
         channels=data.channels,
         axes=data.axes,
         singular_values=singular.tolist(),
@@ -129,9 +131,8 @@ def log_figures(
 ) -> None:
     """Save each figure as a PNG in the run directory and in TensorBoard."""
     figures = {"spectrum": spectrum_figure(singular, recording.rank, f"{name}: singular values of the readings")}
-    motion = getattr(model, "motion", None)
-    if motion is not None:
-        unknown = motion.detach()[~recording.known]
+    if isinstance(model, ShapeFromMotion):
+        unknown = model.physical_motion()[~recording.known]
         figure = motion_figure(unknown, recording.magnitude, unit, f"{name}: recovered motion")
         if figure is not None:
             figures["motion"] = figure
