@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from hydra.utils import instantiate
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sfmnet.calibration import Calibration
 from sfmnet.training.learner_module import LearnerModule, matrix_error
@@ -69,7 +70,11 @@ def test_run_directory_contents(run_dir: Path):
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert all(isinstance(v, float) for v in metrics.values())
     assert (run_dir / "checkpoints" / "shape_from_motion" / "last.ckpt").is_file()
-    assert list((run_dir / "tensorboard" / "shape_from_motion").glob("events.out.tfevents.*"))
+    events = EventAccumulator(str(run_dir / "tensorboard" / "shape_from_motion"))
+    events.Reload()
+    assert set(events.Tags()["images"]) == {"shape_from_motion/motion", "shape_from_motion/spectrum"}
+    assert {"train/loss", "train/metric_constraint", "error/matrix_relative"} <= set(events.Tags()["scalars"])
+    assert len(events.Scalars("train/loss")) == compose_config([]).trainer.max_epochs
     for name in ("shape_from_motion_motion.png", "shape_from_motion_spectrum.png"):
         assert (run_dir / "figures" / name).stat().st_size > 10_000
     # The saved file applies to readings the same way the model does.

@@ -24,24 +24,34 @@ def motion_figure(motion: torch.Tensor, magnitude: float, unit: str, title: str)
     """
     n = motion.shape[1]
     m = motion.detach().cpu()
+    deviation = 100 * (m.norm(dim=1) / magnitude - 1)
     if n == 2:
-        fig = plt.figure(figsize=(5, 5))
-        ax = fig.add_subplot(projection="polar")
+        fig = plt.figure(figsize=(9, 4.2))
+        polar = fig.add_subplot(1, 2, 1, projection="polar")
         angle = torch.atan2(m[:, 1], m[:, 0])
-        ax.plot(angle, m.norm(dim=1), "o", markersize=3, label="recovered")
+        polar.plot(angle, m.norm(dim=1), "o", markersize=3, label="recovered")
         circle = torch.linspace(0, 2 * math.pi, 200)
-        ax.plot(circle, torch.full_like(circle, magnitude), "k--", linewidth=0.8, label=f"{magnitude:g} {unit}")
-        ax.set_rmin(0)
-        ax.legend(loc="lower right", fontsize=8)
+        polar.plot(circle, torch.full_like(circle, magnitude), "k--", linewidth=0.8, label=f"{magnitude:g} {unit}")
+        polar.set_rmin(0)
+        polar.legend(loc="lower right", fontsize=8)
+        # The magnitude error against direction: 1 % noise is invisible on the polar plot.
+        ax = fig.add_subplot(1, 2, 2)
+        ax.plot(torch.rad2deg(angle), deviation, "o", markersize=3)
+        ax.axhline(0, color="k", linewidth=0.8, linestyle="--")
+        ax.set_xlabel("direction (deg)")
+        ax.set_ylabel("|load| / F - 1 (%)")
+        ax.set_xlim(-180, 180)
+        fig.tight_layout()
     elif n == 3:
-        fig = plt.figure(figsize=(5.5, 5))
+        fig = plt.figure(figsize=(6, 5))
         ax = fig.add_subplot(projection="3d")
         u, v = torch.meshgrid(torch.linspace(0, 2 * math.pi, 24), torch.linspace(0, math.pi, 12), indexing="ij")
         ax.plot_wireframe(
             magnitude * u.cos() * v.sin(), magnitude * u.sin() * v.sin(), magnitude * v.cos(),
             color="0.8", linewidth=0.5,
         )
-        ax.scatter(m[:, 0], m[:, 1], m[:, 2], s=6)
+        points = ax.scatter(m[:, 0], m[:, 1], m[:, 2], s=6, c=deviation, cmap="coolwarm")
+        fig.colorbar(points, ax=ax, shrink=0.6, label="|load| / F - 1 (%)")
         ax.set_xlabel(f"fx ({unit})")
         ax.set_ylabel(f"fy ({unit})")
         ax.set_zlabel(f"fz ({unit})")

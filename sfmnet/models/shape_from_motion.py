@@ -109,10 +109,6 @@ class ShapeFromMotion(LinearCalibrator):
         )
         return terms
 
-    def physical_motion(self) -> torch.Tensor:
-        """``M`` in load units, ``f x n``."""
-        return self.motion.detach() * self.load_scale * self.motion_gain
-
     @torch.no_grad()
     def finalise(self, recording: CalibrationRecording) -> None:
         """Turn the solution into the known loads' frame by Procrustes (NOTES 3).

@@ -50,9 +50,13 @@ class LearnerModule(L.LightningModule):
         return self.optimizer_factory([p for p in self.parameters() if p.requires_grad])
 
     def training_step(self, batch: dict[str, tuple[torch.Tensor, ...]], batch_idx: int) -> torch.Tensor:
-        terms = self.model.loss(batch[self.model.recording])
-        self.log_dict({f"train/{name}": value.detach() for name, value in terms.items()}, on_step=False, on_epoch=True)
-        self.log("loss", terms["loss"].detach(), on_step=False, on_epoch=True, prog_bar=True, logger=False)
+        rows = batch[self.model.recording]
+        terms = self.model.loss(rows)
+        size = len(rows[0])
+        self.log_dict(
+            {f"train/{name}": value.detach() for name, value in terms.items()}, on_step=False, on_epoch=True, batch_size=size
+        )
+        self.log("loss", terms["loss"].detach(), on_epoch=True, prog_bar=True, logger=False, batch_size=size)
         return terms["loss"]
 
     def on_train_epoch_end(self) -> None:
