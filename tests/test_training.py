@@ -40,8 +40,8 @@ def test_gradient_training_through_trainer_converges_to_closed_form(overrides):
     assert matrix_error(model.calibration_matrix(), truth) < 1e-9
     generator = torch.Generator().manual_seed(0)
     with torch.no_grad():
-        for parameter in (model.shape, model.motion):
-            parameter.mul_(1 + 0.1 * torch.randn(parameter.shape, generator=generator, dtype=parameter.dtype))
+        model.shape.mul_(1 + 0.1 * torch.randn(model.shape.shape, generator=generator, dtype=model.shape.dtype))
+        model.offset.add_(0.1 * torch.randn(model.offset.shape, generator=generator, dtype=model.offset.dtype))
     assert matrix_error(model.calibration_matrix(), truth) > 0.05
     trainer = instantiate(cfg.trainer, logger=False, enable_checkpointing=False)
     trainer.fit(LearnerModule(model, instantiate(cfg.optimizer)), datamodule=datamodule)

@@ -104,6 +104,11 @@ def symmetric_from_upper(values: torch.Tensor, n: int) -> torch.Tensor:
     return q
 
 
+def metric_unknowns(rank: int, offsets: bool) -> int:
+    """Unknowns of the metric constraint: ``n(n+1)/2`` entries of ``Q``, plus ``n`` for the centre with offsets."""
+    return rank * (rank + 1) // 2 + (rank if offsets else 0)
+
+
 def metric_gram(motion: torch.Tensor, magnitude: float) -> torch.Tensor:
     """Solve the metric constraint ``m^_j Q m^_j^T = F^2`` for ``Q = B B^T`` by least squares (eq. 11).
 
@@ -119,7 +124,7 @@ def metric_gram(motion: torch.Tensor, magnitude: float) -> torch.Tensor:
             positive definite (the motion does not span the space).
     """
     f, n = motion.shape
-    unknowns = n * (n + 1) // 2
+    unknowns = metric_unknowns(n, offsets=False)
     if f < unknowns:
         raise SfmnetError(
             f"only {f} samples for {unknowns} unknowns of the metric constraint: "
@@ -137,8 +142,8 @@ def positive_definite_or_raise(q: torch.Tensor) -> torch.Tensor:
     if eigenvalues[0] <= RANK_TOLERANCE * eigenvalues[-1].abs():
         raise SfmnetError(
             "the metric constraint has no positive-definite solution (Q eigenvalues "
-            f"{[round(float(v), 6) for v in eigenvalues]}): the orientations do not span the load "
-            "space or the magnitude is not constant; record more varied orientations of one mass"
+            f"{[round(float(v), 6) for v in eigenvalues]}): the loads are collinear or coplanar, or their "
+            "magnitude is not constant; turn one mass through orientations that span every load axis"
         )
     return q
 
@@ -177,7 +182,7 @@ def fit_ellipsoid(points: torch.Tensor, magnitude: float) -> EllipsoidFit:
         SfmnetError: too few samples for the ``n(n+1)/2 + n`` unknowns, or no ellipsoid.
     """
     f, n = points.shape
-    unknowns = n * (n + 1) // 2 + n
+    unknowns = metric_unknowns(n, offsets=True)
     if f < unknowns:
         raise SfmnetError(
             f"only {f} samples for {unknowns} unknowns of the metric constraint with offsets: "

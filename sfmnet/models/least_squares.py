@@ -21,7 +21,7 @@ class LeastSquaresCalibration(LinearCalibrator):
     name = "least_squares"
     recording = "least_squares"
 
-    def __init__(self, estimate_offset: bool = False) -> None:
+    def __init__(self, estimate_offset: bool = True) -> None:
         super().__init__(estimate_offset=estimate_offset)
 
     def initialise(self, recording: CalibrationRecording) -> None:

@@ -9,6 +9,7 @@ from torch import nn
 
 from sfmnet.calibration import calibration_matrix
 from sfmnet.data.recording import CalibrationRecording
+from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
 
 Batch = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 
@@ -50,9 +51,6 @@ class LinearCalibrator(nn.Module, ABC):
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Loss terms of one batch ``(index, readings, loads)``; key ``"loss"`` is minimised."""
 
-    def finalise(self, recording: CalibrationRecording) -> None:
-        """Anything left after gradient training (e.g. fixing the frame). Default: nothing."""
-
     def set_solution(self, shape: torch.Tensor, offset: torch.Tensor, readings: torch.Tensor, load_scale: float) -> None:
         """Store a solution given in physical units (``S``: ``n x p``, ``o``: ``p``)."""
         self.reading_scale = (readings - readings.mean(dim=0)).pow(2).sum(dim=1).mean().sqrt()
@@ -75,6 +73,27 @@ class LinearCalibrator(nn.Module, ABC):
     def motion_of(self, readings: torch.Tensor) -> torch.Tensor:
         """The least-squares loads of readings under the current shape, ``f x n`` load units."""
         return (readings - self.physical_offset()) @ self.calibration_matrix().T
+
+    def unknown_loads(self, recording: CalibrationRecording) -> torch.Tensor:
+        """The fitted loads of the rows whose load is unknown, ``f x n`` (none here)."""
+        return recording.loads[:0]
+
+    def uncertainty(self, recording: CalibrationRecording) -> CalibrationUncertainty:
+        """Cramer-Rao standard errors of the calibration at the fitted solution (reading noise only)."""
+        known = recording.known
+        known_loads = recording.loads[known]
+        unknown_loads = self.unknown_loads(recording)
+        shape, offset = self.physical_shape(), self.physical_offset()
+        predicted = torch.cat([known_loads, unknown_loads]) @ shape + offset
+        residual = torch.cat([recording.readings[known], recording.readings[~known]]) - predicted
+        return calibration_uncertainty(
+            shape,
+            known_loads,
+            unknown_loads,
+            self.estimate_offset,
+            residual_sum_of_squares=float(residual.pow(2).sum()),
+            observations=residual.numel(),
+        )
 
     def residual_rms(self, recording: CalibrationRecording) -> float:
         """RMS of ``Z - M S - o`` with ``M`` the least-squares loads: what the rank-n model leaves unexplained."""

@@ -12,14 +12,22 @@ import torch
 
 
 def reconstruction_loss(
-    readings: torch.Tensor, motion: torch.Tensor, shape: torch.Tensor, offset: torch.Tensor
+    readings: torch.Tensor,
+    motion: torch.Tensor,
+    shape: torch.Tensor,
+    offset: torch.Tensor,
+    rows: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """``mean_j |z_j - m_j S - o|^2`` (paper eq. 5 with offsets).
+    """``sum_j |z_j - m_j S - o|^2 / b`` over the selected rows (paper eq. 5 with offsets).
 
     Args:
         readings: ``b x p``; motion: ``b x n``; shape: ``n x p``; offset: ``p``.
+        rows: boolean ``b``, the rows to sum (default all).
     """
-    return (readings - motion @ shape - offset).pow(2).sum(dim=1).mean()
+    residual = readings - motion @ shape - offset
+    if rows is not None:
+        residual = residual[rows]
+    return residual.pow(2).sum() / len(readings)
 
 
 def metric_constraint_loss(motion: torch.Tensor, constrained: torch.Tensor) -> torch.Tensor:
@@ -34,12 +42,3 @@ def metric_constraint_loss(motion: torch.Tensor, constrained: torch.Tensor) -> t
     violation = ((motion[constrained].pow(2).sum(dim=1) - 1) / 2).pow(2)
     return violation.sum() / len(motion)
 
-
-def known_load_loss(motion: torch.Tensor, loads: torch.Tensor) -> torch.Tensor:
-    """``sum_k |m_k - f_k|^2 / b`` over the rows whose load ``f_k`` is known, NaN elsewhere (NOTES 3).
-
-    Args:
-        motion: ``b x n``; loads: ``b x n``.
-    """
-    known = ~torch.isnan(loads).any(dim=1)
-    return (motion[known] - loads[known]).pow(2).sum() / len(motion)

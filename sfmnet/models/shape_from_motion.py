@@ -11,55 +11,48 @@ from sfmnet.errors import SfmnetError
 from sfmnet.linalg.factorisation import (
     fit_ellipsoid,
     metric_gram,
+    metric_unknowns,
     metric_upgrade,
     require_coverage,
     truncated_svd_factors,
 )
 from sfmnet.linalg.frame import frame_rotation
-from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, dense_parameter
-from sfmnet.models.losses import known_load_loss, metric_constraint_loss, reconstruction_loss
+from sfmnet.linalg.motion import constrained_motion
+from sfmnet.models.linear_calibrator import Batch, LinearCalibrator
+from sfmnet.models.losses import metric_constraint_loss, reconstruction_loss
 
 
 class ShapeFromMotion(LinearCalibrator):
-    """Rank-n factorisation of raw readings into motion ``M`` (a per-sample table) and shape ``S``.
+    """Rank-n factorisation of raw readings into motion ``M`` and shape ``S``, the metric constraint a loss term.
 
     Loss (NOTES 5), readings in units of their RMS norm and loads in units of ``F``::
 
-        L = (1/f) [ sum_j |z_j - m_j S - o|^2
-                    + metric_weight * sum_j ((|m_j|^2 - 1) / 2)^2     over unknown-load rows
-                    + known_load_weight * sum_k |m_k - f_k|^2 ]       over known-load rows
+        L = (1/f) [ sum_j |z_j - m_j S - o|^2                            unknown-load rows
+                    + metric_weight * sum_j ((|m_j|^2 - 1) / 2)^2     unknown-load rows
+                    + sum_k |z_k - f_k S - o|^2 ]                      known-load rows
 
+    Each unknown row's ``m_j`` is the minimiser of its own terms given ``S`` and ``o``
+    (:func:`constrained_motion`, variable projection), so the trainer's optimiser works on
+    ``S`` and ``o`` alone: a small, well-conditioned problem. Known loads are used as their
+    rows' motion, their maximum-likelihood use, which also holds the frame during training.
     ``metric_weight = 0`` is the unconstrained affine factorisation (truncated SVD, or PCA
-    when centred). The closed form (paper eqs. 7-11, NOTES 2-4) is the first step of fitting;
-    gradient steps through the trainer then refine it towards maximum likelihood.
+    when centred); large weights approach the hard constraint of maximum likelihood.
+
+    The closed form (paper eqs. 7-11, NOTES 2-4) is the first step of fitting.
 
     Args:
         rank: ``n``, the number of load axes (2, 3, 6, ...); None takes it from the data.
-        metric_weight: weight of the metric-constraint loss (0: unconstrained). Larger is
-            closer to the hard constraint of maximum likelihood but slower to converge (the
-            problem's condition number grows with it); 10 converges to machine precision.
-        known_load_weight: weight of the known-load loss. The frame is always set exactly by
-            Procrustes after training (:meth:`finalise`), which minimises this term over the
-            frame; a positive weight also lets the known loads pull on the shape.
+        metric_weight: weight of the metric-constraint loss (0: unconstrained).
         estimate_offset: learn channel offsets (ellipsoid closed form, NOTES 4); else tared readings.
     """
 
     name = "shape_from_motion"
     recording = "rotation"
 
-    def __init__(
-        self,
-        rank: int | None = None,
-        metric_weight: float = 10.0,
-        known_load_weight: float = 0.0,
-        estimate_offset: bool = False,
-    ) -> None:
+    def __init__(self, rank: int | None = None, metric_weight: float = 1000.0, estimate_offset: bool = True) -> None:
         super().__init__(estimate_offset=estimate_offset)
         self.rank = rank
         self.metric_weight = metric_weight
-        self.known_load_weight = known_load_weight
-        self.register_parameter("motion", None)
-        self.motion_gain = 1.0
         self.coverage = float("nan")
 
     def initialise(self, recording: CalibrationRecording) -> None:
@@ -73,6 +66,13 @@ class ShapeFromMotion(LinearCalibrator):
         if constrained and not math.isfinite(magnitude):
             raise SfmnetError("the metric constraint needs the load magnitude: set data.magnitude (load units)")
         unknown = recording.readings[~recording.known]
+        needed = metric_unknowns(self.rank, self.estimate_offset) if constrained else self.rank + self.estimate_offset
+        if len(unknown) < needed:
+            raise SfmnetError(
+                f"only {len(unknown)} samples for {needed} unknowns of the metric constraint"
+                f"{' with offsets' if self.estimate_offset else ''}: record at least {needed} orientations "
+                "(dozens give a good calibration)"
+            )
         factors = truncated_svd_factors(unknown, self.rank, centre=self.estimate_offset)
         self.singular_values = factors.singular_values
         shape, offset = factors.shape, factors.mean
@@ -83,39 +83,52 @@ class ShapeFromMotion(LinearCalibrator):
         elif constrained:
             _, shape = metric_upgrade(factors, metric_gram(factors.motion, magnitude))
         self.set_solution(shape, offset, recording.readings, load_scale=magnitude if constrained else 1.0)
-        # Each row of M enters the mean loss with weight 1/f while S sees every row; storing
-        # M / sqrt(f) gives both the same curvature, which L-BFGS needs to converge (diagonal
-        # preconditioning).
-        self.motion_gain = math.sqrt(len(recording.readings))
-        motion = self.motion_of(recording.readings)
         if constrained:
-            self.coverage = require_coverage(motion[~recording.known], magnitude)
-        self.motion = dense_parameter(motion / (self.load_scale * self.motion_gain))
-        self.finalise(recording)
+            self.coverage = require_coverage(self.motion_of(unknown), magnitude)
+        self.orient(recording)
+
+    def motion(self, readings: torch.Tensor, loads: torch.Tensor) -> torch.Tensor:
+        """Rows' motion in the model's units: the known load where given, else :func:`constrained_motion`.
+
+        Args:
+            readings: ``b x p`` divided by ``reading_scale``; loads: ``b x n`` divided by ``load_scale``, NaN if unknown.
+        """
+        unknown = torch.isnan(loads).any(dim=1)
+        motion = loads.clone()
+        motion[unknown] = constrained_motion(
+            readings[unknown] - self.offset.detach(), self.shape.detach(), self.metric_weight
+        )
+        return motion
 
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
-        index, readings, loads = batch
-        motion = self.motion[index] * self.motion_gain
+        _, readings, loads = batch
+        readings = readings / self.reading_scale
+        loads = loads / self.load_scale
         unknown = torch.isnan(loads).any(dim=1)
+        motion = self.motion(readings, loads)
         terms = {
-            "reconstruction": reconstruction_loss(readings / self.reading_scale, motion, self.shape, self.offset),
+            "reconstruction": reconstruction_loss(readings, motion, self.shape, self.offset, unknown),
             "metric_constraint": metric_constraint_loss(motion, unknown),
-            "known_load": known_load_loss(motion, loads / self.load_scale),
+            "known_load": reconstruction_loss(readings, motion, self.shape, self.offset, ~unknown),
         }
-        terms["loss"] = (
-            terms["reconstruction"]
-            + self.metric_weight * terms["metric_constraint"]
-            + self.known_load_weight * terms["known_load"]
-        )
+        terms["loss"] = terms["reconstruction"] + self.metric_weight * terms["metric_constraint"] + terms["known_load"]
         return terms
 
-    @torch.no_grad()
-    def finalise(self, recording: CalibrationRecording) -> None:
-        """Turn the solution into the known loads' frame by Procrustes (NOTES 3).
+    def unknown_loads(self, recording: CalibrationRecording) -> torch.Tensor:
+        """The fitted loads of the constant-magnitude rows, put exactly on the sphere of radius ``F``."""
+        unknown = ~recording.known
+        motion = constrained_motion(
+            recording.readings[unknown] / self.reading_scale - self.offset.detach(), self.shape.detach(), self.metric_weight
+        )
+        return recording.magnitude * motion / motion.norm(dim=1, keepdim=True)
 
-        Reconstruction and metric losses do not change under an orthogonal transform of the
-        frame, so this is the exact minimiser of the known-load term over that freedom.
-        Without known loads the frame stays arbitrary (``frame_fixed`` is False).
+    @torch.no_grad()
+    def orient(self, recording: CalibrationRecording) -> None:
+        """Turn the closed-form solution into the known loads' frame by Procrustes (NOTES 3).
+
+        Training then keeps that frame: the known-load term holds it, and with ``n - 1``
+        known loads the mirror image is a discrete jump no gradient step makes. Without
+        known loads the frame stays arbitrary (``frame_fixed`` is False).
         """
         known = recording.known
         self.frame_fixed = bool(known.any())
@@ -129,7 +142,6 @@ class ShapeFromMotion(LinearCalibrator):
                 raise SfmnetError(
                     f"mirror_hint.sample is {hint.sample} but there are {len(unknown_rows)} unknown-orientation rows"
                 )
-            hint_motion = self.motion[unknown_rows[hint.sample]][None]
-        rotation = frame_rotation(self.motion[known], recording.loads[known], hint_motion, hint)
-        self.motion.copy_(self.motion @ rotation)
+            hint_motion = self.motion_of(recording.readings[unknown_rows[hint.sample]][None])
+        rotation = frame_rotation(self.motion_of(recording.readings[known]), recording.loads[known], hint_motion, hint)
         self.shape.copy_(rotation.T @ self.shape)

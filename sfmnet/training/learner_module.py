@@ -17,8 +17,8 @@ OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimize
 class LearnerModule(L.LightningModule):
     """Thin Lightning glue over a model that owns its math.
 
-    Fitting runs ``model.initialise`` (the closed form) in ``setup``, gradient steps on
-    ``model.loss`` for the trainer's epochs, and ``model.finalise`` at the end. Every epoch it
+    Fitting runs ``model.initialise`` (the closed form) in ``setup``, then gradient steps on
+    ``model.loss`` for the trainer's epochs. Every epoch it
     logs the loss terms, the singular values of the shape and, for simulated data, the
     relative error of the calibration matrix.
 
@@ -65,9 +65,6 @@ class LearnerModule(L.LightningModule):
         truth = self.trainer.datamodule.data.truth
         if truth is not None:
             self.log("error/matrix_relative", matrix_error(self.model.calibration_matrix(), truth.matrix), prog_bar=True)
-
-    def on_fit_end(self) -> None:
-        self.model.finalise(self.recording)
 
 
 def matrix_error(matrix: torch.Tensor, true_matrix: torch.Tensor) -> torch.Tensor:

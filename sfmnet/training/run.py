@@ -132,7 +132,7 @@ def log_figures(
     """Save each figure as a PNG in the run directory and in TensorBoard."""
     figures = {"spectrum": spectrum_figure(singular, recording.rank, f"{name}: singular values of the readings")}
     if isinstance(model, ShapeFromMotion):
-        # The calibrated readings, not the constraint-pulled motion table: they show the noise.
+        # The calibrated readings, not the constraint-pulled motion: they show the noise.
         unknown = model.motion_of(recording.readings)[~recording.known]
         figure = motion_figure(unknown, recording.magnitude, unit, f"{name}: recovered motion")
         if figure is not None:
