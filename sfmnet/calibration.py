@@ -29,6 +29,8 @@ class Calibration:
         axes: the ``n`` load axis names.
         singular_values: spectrum of the readings the calibration came from.
         residual_rms: RMS of the reconstruction residual per channel entry, raw units.
+        matrix_std: ``n x p`` standard errors of ``matrix`` (Cramer-Rao bound), if known.
+        offset_std: ``p`` standard errors of ``offset``, if known.
         extra: anything else worth keeping in the file (method, frame, units).
     """
 
@@ -38,6 +40,8 @@ class Calibration:
     axes: list[str]
     singular_values: list[float] = field(default_factory=list)
     residual_rms: float = float("nan")
+    matrix_std: torch.Tensor | None = None
+    offset_std: torch.Tensor | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def apply(self, readings: torch.Tensor) -> torch.Tensor:
@@ -46,6 +50,7 @@ class Calibration:
         return (readings - self.offset.to(readings.dtype)) @ matrix.T
 
     def to_dict(self) -> dict[str, Any]:
+        optional = {"matrix_std": self.matrix_std, "offset_std": self.offset_std}
         return {
             "matrix": self.matrix.tolist(),
             "offset": self.offset.tolist(),
@@ -53,6 +58,7 @@ class Calibration:
             "axes": list(self.axes),
             "singular_values": [float(v) for v in self.singular_values],
             "residual_rms": float(self.residual_rms),
+            **{key: value.tolist() for key, value in optional.items() if value is not None},
             **self.extra,
         }
 
@@ -68,7 +74,7 @@ class Calibration:
             raise SfmnetError(f"calibration file {path} does not exist: give the calibration.json of a run") from None
         except (OSError, ValueError) as error:
             raise SfmnetError(f"calibration file {path} cannot be read as JSON ({error}): give the calibration.json of a run") from None
-        known = {"matrix", "offset", "channels", "axes", "singular_values", "residual_rms"}
+        known = {"matrix", "offset", "channels", "axes", "singular_values", "residual_rms", "matrix_std", "offset_std"}
         missing = sorted({"matrix", "offset", "channels", "axes"} - set(raw))
         if missing:
             raise SfmnetError(f"calibration file {path} lacks {', '.join(missing)}: give the calibration.json of a run")
@@ -85,5 +91,7 @@ class Calibration:
             axes=list(raw["axes"]),
             singular_values=list(raw.get("singular_values", [])),
             residual_rms=float(raw.get("residual_rms", float("nan"))),
+            matrix_std=torch.tensor(raw["matrix_std"], dtype=torch.float64) if "matrix_std" in raw else None,
+            offset_std=torch.tensor(raw["offset_std"], dtype=torch.float64) if "offset_std" in raw else None,
             extra={k: v for k, v in raw.items() if k not in known},
         )

@@ -7,7 +7,11 @@ import torch
 
 @torch.no_grad()
 def constrained_motion(
-    readings: torch.Tensor, shape: torch.Tensor, metric_weight: float, iterations: int = 20
+    readings: torch.Tensor,
+    shape: torch.Tensor,
+    metric_weight: float,
+    iterations: int = 50,
+    tolerance: float = 1e-13,
 ) -> torch.Tensor:
     """Per row, ``argmin_m |z - m S|^2 + w ((|m|^2 - 1) / 2)^2`` (loads in units of ``F``).
 
@@ -24,7 +28,8 @@ def constrained_motion(
         readings: ``b x p`` (offsets removed).
         shape: ``n x p``.
         metric_weight: ``w``.
-        iterations: Newton steps.
+        iterations: at most this many Newton steps.
+        tolerance: stop once no entry moves by more than this (units of ``F``).
 
     Returns:
         ``b x n``.
@@ -41,5 +46,8 @@ def constrained_motion(
         hessian = 2 * gram + metric_weight * (
             excess.clamp_min(0)[:, :, None] * eye + 2 * motion[:, :, None] * motion[:, None, :]
         )
-        motion = motion - torch.linalg.solve(hessian, gradient[:, :, None])[:, :, 0]
+        step = torch.linalg.solve(hessian, gradient[:, :, None])[:, :, 0]
+        motion = motion - step
+        if float(step.abs().max()) < tolerance:
+            break
     return motion

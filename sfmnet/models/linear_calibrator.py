@@ -78,18 +78,20 @@ class LinearCalibrator(nn.Module, ABC):
         """The fitted loads of the rows whose load is unknown, ``f x n`` (none here)."""
         return recording.loads[:0]
 
+    def fitted_residuals(self, recording: CalibrationRecording) -> torch.Tensor:
+        """``z - m S - o`` per row (``f x p``), with each row's fitted load (known, or on the sphere)."""
+        known = recording.known
+        loads = recording.loads.clone()
+        loads[~known] = self.unknown_loads(recording)
+        return recording.readings - loads @ self.physical_shape() - self.physical_offset()
+
     def uncertainty(self, recording: CalibrationRecording) -> CalibrationUncertainty:
         """Cramer-Rao standard errors of the calibration at the fitted solution (reading noise only)."""
-        known = recording.known
-        known_loads = recording.loads[known]
-        unknown_loads = self.unknown_loads(recording)
-        shape, offset = self.physical_shape(), self.physical_offset()
-        predicted = torch.cat([known_loads, unknown_loads]) @ shape + offset
-        residual = torch.cat([recording.readings[known], recording.readings[~known]]) - predicted
+        residual = self.fitted_residuals(recording)
         return calibration_uncertainty(
-            shape,
-            known_loads,
-            unknown_loads,
+            self.physical_shape(),
+            recording.loads[recording.known],
+            self.unknown_loads(recording),
             self.estimate_offset,
             residual_sum_of_squares=float(residual.pow(2).sum()),
             observations=residual.numel(),

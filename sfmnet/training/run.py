@@ -30,6 +30,7 @@ from sfmnet.calibration import Calibration
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.errors import SfmnetError
+from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import motion_figure, spectrum_figure
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.io import write_json_atomic
@@ -48,6 +49,7 @@ class MethodResult:
     name: str
     calibration: Calibration
     metrics: dict[str, float]
+    warnings: list[str]
 
 
 def quiet_lightning() -> None:
@@ -86,24 +88,33 @@ def fit_method(
 
     data = datamodule.data
     recording = data.recordings[model.recording]
-    rank = recording.rank
-    singular = model.singular_values
+    uncertainty = model.uncertainty(recording)
+    diagnostics, warnings = calibration_diagnostics(model, recording, data.channels)
     calibration = Calibration(
         matrix=model.calibration_matrix(),
         offset=model.physical_offset(),
         channels=data.channels,
         axes=data.axes,
-        singular_values=singular.tolist(),
+        singular_values=model.singular_values.tolist(),
         residual_rms=model.residual_rms(recording),
-        extra={"method": name, "load_unit": data.load_unit, "frame": frame_description(model)},
+        matrix_std=uncertainty.matrix_std,
+        offset_std=uncertainty.offset_std,
+        extra={
+            "method": name,
+            "load_unit": data.load_unit,
+            "frame": frame_description(model),
+            "noise_std": uncertainty.noise_std,
+            "warnings": warnings,
+        },
     )
     metrics: dict[str, float] = {
         "residual_rms": calibration.residual_rms,
+        "noise_std": uncertainty.noise_std,
+        "matrix_std_relative": float(uncertainty.matrix_std.norm() / calibration.matrix.norm()),
         "fit_seconds": seconds,
         "epochs": float(trainer.current_epoch),
+        **diagnostics,
     }
-    if len(singular) > rank:
-        metrics["rank_gap"] = float(singular[rank - 1] / singular[rank])
     for key, value in trainer.callback_metrics.items():
         if key.startswith("train/"):
             metrics[key] = float(value)
@@ -111,8 +122,8 @@ def fit_method(
         metrics["matrix_error_relative"] = float(matrix_error(calibration.matrix, data.truth.matrix))
         metrics["offset_error_rms"] = float((calibration.offset - data.truth.offset).pow(2).mean().sqrt())
     metrics.update(evaluate_sweeps(calibration, data.evaluations, cfg.eval.smoothing_window))
-    log_figures(name, model, recording, data.load_unit, singular, run_dir, logger, trainer.global_step)
-    return MethodResult(name=name, calibration=calibration, metrics=metrics)
+    log_figures(name, model, recording, data.load_unit, model.singular_values, run_dir, logger, trainer.global_step)
+    return MethodResult(name=name, calibration=calibration, metrics=metrics, warnings=warnings)
 
 
 def frame_description(model: LinearCalibrator) -> str:
@@ -150,6 +161,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     run_dir = Path(run_dir)
     refuse_existing_results(run_dir)
     quiet_lightning()
+    torch.set_num_threads(cfg.threads)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
     datamodule: CalibrationDataModule = instantiate(cfg.data)
     datamodule.setup("fit")
@@ -171,6 +183,8 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     print(f"\nrun directory: {run_dir}")
     for result in results.values():
         print(headline(result, datamodule.data.load_unit))
+        for warning in result.warnings:
+            print(f"  warning ({result.name}): {warning}")
     if cfg.get("report"):
         print(instantiate(cfg.report)({n: r.metrics for n, r in results.items()}, datamodule.data, run_dir))
     print(f"inspect: tensorboard --logdir {run_dir}")
@@ -182,6 +196,7 @@ def headline(result: MethodResult, unit: str) -> str:
     parts = []
     if "eval/max_error_pct" in m:
         parts.append(f"worst |load| error {m['eval/max_error_pct']:.3f} %, worst smoothed std {m['eval/max_std_dev']:.3f} {unit}")
+    parts.append(f"matrix standard error {100 * m['matrix_std_relative']:.3f} % (Cramer-Rao)")
     if "matrix_error_relative" in m:
         parts.append(f"matrix error {100 * m['matrix_error_relative']:.3f} % (vs simulated truth)")
     if "rank_gap" in m:
