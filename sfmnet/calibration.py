@@ -69,11 +69,18 @@ class Calibration:
     def load(cls, path: Path) -> Calibration:
         """Read a calibration file, checking its shape; a bad file raises :class:`SfmnetError`."""
         try:
-            raw = json.loads(Path(path).read_text())
+            text = Path(path).read_text()
+            if not text.strip():
+                raise SfmnetError(f"calibration file {path} is empty: give the calibration.json of a run")
+            raw = json.loads(text)
         except FileNotFoundError:
             raise SfmnetError(f"calibration file {path} does not exist: give the calibration.json of a run") from None
+        except SfmnetError:
+            raise
         except (OSError, ValueError) as error:
             raise SfmnetError(f"calibration file {path} cannot be read as JSON ({error}): give the calibration.json of a run") from None
+        if not isinstance(raw, dict):
+            raise SfmnetError(f"calibration file {path} is not a calibration (a JSON object): give the calibration.json of a run")
         known = {"matrix", "offset", "channels", "axes", "singular_values", "residual_rms", "matrix_std", "offset_std"}
         missing = sorted({"matrix", "offset", "channels", "axes"} - set(raw))
         if missing:

@@ -16,6 +16,7 @@ from sfmnet.errors import SfmnetError
 
 USAGE = """\
 usage: python -m sfmnet [train] [key=value ...] [-m]
+       python -m sfmnet apply calibration=<json> input=<csv> output=<csv> [overwrite=true]
 
 commands:
   train    fit an experiment and write its run directory (the default command)
@@ -23,6 +24,8 @@ commands:
            python -m sfmnet train experiment=table1      least squares vs shape from motion
            python -m sfmnet train -m data.noise_fraction=0.005,0.01,0.02   a sweep
            python -m sfmnet train --help                 every config group and key
+  apply    turn a CSV of raw readings into loads with a run's calibration.json; the input's
+           columns are kept and the loads added (an existing output needs overwrite=true)
 
 errors print one line and exit with status 2; set SFMNET_DEBUG=1 for the full traceback.
 """
@@ -90,7 +93,13 @@ def train_command() -> None:
     task()
 
 
-COMMANDS: dict[str, Callable[[], None]] = {"train": train_command}
+def apply_command() -> None:
+    from sfmnet.apply import apply_command as run_apply
+
+    exit_on_user_error(lambda: run_apply(sys.argv[1:]))
+
+
+COMMANDS: dict[str, Callable[[], None]] = {"train": train_command, "apply": apply_command}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -104,6 +113,7 @@ def main(argv: list[str] | None = None) -> None:
         if command not in COMMANDS:
             print(f"error: unknown command '{command}': use one of {', '.join(COMMANDS)} (python -m sfmnet --help)", file=sys.stderr)
             sys.exit(2)
-    exit_on_user_error(lambda: refuse_used_run_dir(args))
+    if command == "train":
+        exit_on_user_error(lambda: refuse_used_run_dir(args))
     sys.argv = [sys.argv[0], *args]
     COMMANDS[command]()

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import csv
+import math
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
 from sfmnet.cli import config_dir
+from sfmnet.data.simulated_sensor import ForceSensor3DataModule
 
 REPO = Path(__file__).resolve().parent.parent
 EXPERIMENTS = sorted(p.stem for p in (REPO / "conf" / "experiment").glob("*.yaml"))
@@ -25,3 +29,28 @@ def run_dir(tmp_path: Path) -> Path:
     path = tmp_path / "run"
     path.mkdir()
     return path
+
+
+def write_session(path: Path, known_loads: int = 3, seed: int = 0, edit=None) -> torch.Tensor:
+    """A simulated 3-axis session as a CSV (time, s0..s5, fx, fy, fz); returns the true matrix."""
+    datamodule = ForceSensor3DataModule(
+        magnitude=9.81, offset_scale=0.2, known_loads=known_loads, mirror_hint=False, seed=seed
+    )
+    datamodule.setup()
+    recording = datamodule.data.recordings["rotation"]
+    rows = [["time", *(f"s{i}" for i in range(6)), "fx", "fy", "fz"]]
+    for i, (z, f) in enumerate(zip(recording.readings.tolist(), recording.loads.tolist())):
+        rows.append([f"{0.01 * i:.2f}", *(f"{v:.9f}" for v in z), *("" if math.isnan(v) else f"{v:.6f}" for v in f)])
+    if edit:
+        edit(rows)
+    with path.open("w", newline="") as stream:
+        csv.writer(stream).writerows(rows)
+    return datamodule.data.truth.matrix
+
+
+def experiment_overrides(experiment: str, tmp_path: Path) -> list[str]:
+    """What an experiment that reads the user's file needs: a simulated session written to disk."""
+    if experiment == "calibrate_csv":
+        write_session(tmp_path / "session.csv")
+        return [f"data.path={tmp_path / 'session.csv'}", "data.magnitude=9.81", "data.time_column=time"]
+    return []

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from hydra.utils import instantiate
 
-from tests.conftest import EXPERIMENTS, compose_config
+from tests.conftest import EXPERIMENTS, compose_config, experiment_overrides
 
 
 def test_experiments_found():
@@ -13,8 +13,8 @@ def test_experiments_found():
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
-def test_experiment_composes_and_instantiates(experiment: str):
-    cfg = compose_config([f"experiment={experiment}"])
+def test_experiment_composes_and_instantiates(experiment: str, tmp_path):
+    cfg = compose_config([f"experiment={experiment}", *experiment_overrides(experiment, tmp_path)])
     datamodule = instantiate(cfg.data)
     datamodule.setup()
     model = instantiate(cfg.model)

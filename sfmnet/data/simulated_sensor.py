@@ -36,6 +36,7 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         mirror_hint: name one unknown sample's rough direction (see :class:`MirrorHint`).
         motion_span: how many load axes the unknown orientations cover (default all; fewer
             simulates a session that cannot calibrate: collinear or coplanar loads).
+        orientation_bias: crowd the orientations towards the last axis (0: uniform).
         noise_fraction: electrical noise std as a fraction of a channel's full-load signal.
         offset_scale: std of the channel offsets (raw units); 0 gives tared readings.
         errors: the load-application error model (a :class:`LoadApplicationErrors` or its fields).
@@ -57,6 +58,7 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         known_loads: int = 1,
         mirror_hint: bool = True,
         motion_span: int | None = None,
+        orientation_bias: float = 0.0,
         noise_fraction: float = 0.01,
         offset_scale: float = 0.0,
         errors: LoadApplicationErrors | dict | None = None,
@@ -74,6 +76,7 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         self.known_loads = known_loads
         self.mirror_hint = mirror_hint
         self.motion_span = motion_span
+        self.orientation_bias = orientation_bias
         self.noise_fraction = noise_fraction
         self.offset_scale = offset_scale
         self.errors = errors if isinstance(errors, LoadApplicationErrors) else LoadApplicationErrors(**(errors or {}))
@@ -106,6 +109,7 @@ class SimulatedSensorDataModule(CalibrationDataModule):
                 errors=self.errors,
                 generator=generator,
                 motion_span=self.motion_span,
+                orientation_bias=self.orientation_bias,
             )
         }
         if self.least_squares_masses:

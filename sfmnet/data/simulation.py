@@ -133,11 +133,14 @@ def rotation_recording(
     errors: LoadApplicationErrors,
     generator: torch.Generator,
     motion_span: int | None = None,
+    orientation_bias: float = 0.0,
 ) -> CalibrationRecording:
     """One mass turned through ``samples`` unknown orientations, then ``known_loads`` loads along the first axes.
 
     ``motion_span`` (default ``n``) limits the unknown orientations to the first that many
     axes: 1 gives collinear loads, 2 coplanar ones (a session that cannot calibrate).
+    ``orientation_bias`` > 0 crowds the orientations towards the last axis (1: most loads
+    within 60 degrees of it), as when an arm cannot turn the sensor upside down.
 
     The unknown rows come first; the known ones (axis-aligned, set on a stage) follow.
     With ``mirror_hint``, the unknown sample whose load leans furthest along the last axis
@@ -146,6 +149,7 @@ def rotation_recording(
     n = sensor.shape.shape[0]
     masses = torch.full((samples,), true_magnitude, dtype=DTYPE)
     directions = random_directions(samples, n, generator)
+    directions[:, -1] += orientation_bias
     directions[:, (motion_span or n) :] = 0
     directions = directions / directions.norm(dim=1, keepdim=True)
     unknown = applied_loads(directions, masses, errors, generator, set_directions=False)

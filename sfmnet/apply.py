@@ -1,0 +1,78 @@
+"""``python -m sfmnet apply calibration=<json> input=<csv> output=<csv> [overwrite=true]``: readings in, loads out."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import torch
+
+from sfmnet.calibration import Calibration
+from sfmnet.data.table_file import check_finite, read_table
+from sfmnet.errors import SfmnetError
+from sfmnet.io import write_text_atomic
+
+OPTIONS = {"calibration", "input", "output", "overwrite"}
+
+
+def parse_options(args: list[str]) -> dict[str, str]:
+    options: dict[str, str] = {}
+    for arg in args:
+        key, sep, value = arg.partition("=")
+        if not sep or key not in OPTIONS:
+            raise SfmnetError(
+                f"apply does not understand '{arg}': use calibration=<json> input=<csv> output=<csv> [overwrite=true]"
+            )
+        options[key] = value
+    missing = sorted({"calibration", "input", "output"} - set(options))
+    if missing:
+        raise SfmnetError(f"apply needs {', '.join(f'{m}=' for m in missing)}: calibration=<json> input=<csv> output=<csv>")
+    return options
+
+
+def output_names(axes: list[str], existing: list[str]) -> list[str]:
+    """The load columns' names: the axes, suffixed ``_calibrated`` where the input already uses the name."""
+    return [f"{axis}_calibrated" if axis in existing else axis for axis in axes]
+
+
+def apply_calibration(calibration_path: Path, input_path: Path, output_path: Path, overwrite: bool) -> int:
+    """Write ``output_path``: every input row and column, then the calibrated loads. Returns the row count."""
+    if output_path.exists() and not overwrite:
+        raise SfmnetError(f"{output_path} already exists: choose another output= or add overwrite=true")
+    if output_path.resolve() == input_path.resolve():
+        raise SfmnetError("output= is the input file: write the loads to a new file")
+    calibration = Calibration.load(calibration_path)
+    table = read_table(input_path)
+    missing = [name for name in calibration.channels if name not in table.columns and name not in table.text]
+    if missing:
+        raise SfmnetError(
+            f"{input_path} lacks channel{'s' if len(missing) > 1 else ''} {', '.join(missing)} of the calibration "
+            f"(which needs {', '.join(calibration.channels)}): these readings are not from the calibrated sensor"
+        )
+    readings = table.numeric(calibration.channels, "channel")
+    check_finite(readings, calibration.channels, input_path, "reading")
+    loads = calibration.apply(torch.from_numpy(readings)).numpy()
+
+    with input_path.open(newline="") as stream:
+        rows = [row for row in csv.reader(stream) if any(cell.strip() for cell in row)]
+    header = rows[0]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow([*header, *output_names(calibration.axes, header)])
+    for row, load in zip(rows[1:], loads):
+        writer.writerow([*row, *(f"{value:.9g}" for value in load)])
+    write_text_atomic(output_path, buffer.getvalue())
+    return len(loads)
+
+
+def apply_command(args: list[str]) -> None:
+    options = parse_options(args)
+    output = Path(options["output"])
+    count = apply_calibration(
+        Path(options["calibration"]),
+        Path(options["input"]),
+        output,
+        overwrite=options.get("overwrite", "false").lower() in ("1", "true", "yes"),
+    )
+    print(f"wrote {count} rows of loads to {output}")

@@ -1,0 +1,140 @@
+"""A calibration session recorded in a file: raw channels, and loads on the rows where they are known."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sfmnet.data.calibration_datamodule import CalibrationDataModule
+from sfmnet.data.recording import CalibrationData, CalibrationRecording
+from sfmnet.data.table_file import check_finite, read_table
+from sfmnet.errors import SfmnetError
+from sfmnet.linalg.frame import MirrorHint
+
+STANDARD_GRAVITY = 9.80665  # m/s^2
+
+
+class CsvCalibrationDataModule(CalibrationDataModule):
+    """One mass turned through unknown orientations, from a CSV (or ``.npy``/``.npz``) file.
+
+    One row per sample. The load columns are filled only on rows whose load is known (the
+    few reference loads) and empty elsewhere; every row is taken with the same load
+    magnitude, the calibration mass.
+
+    Args:
+        path: the file.
+        load_columns: the ``n`` load columns, e.g. ``[fx, fy, fz]``; their names become the axes.
+        channel_columns: raw channel columns (default: every other numeric column but ``time_column``).
+        time_column: a column to ignore, e.g. a timestamp.
+        columns: names of a ``.npy`` file's columns.
+        magnitude: the load magnitude (load units); or give ``mass``.
+        mass: the calibration mass in kg; the magnitude is ``mass * 9.80665`` N.
+        mirror_hint: ``{row: <data row, 0-based>, axis: <load column>, sign: <+1|-1>}``, the rough
+            sign of one unknown row's load component; needed with ``n - 1`` known loads.
+        known_load_tolerance: relative disagreement allowed between a known load's magnitude
+            and ``magnitude`` (the known loads are the same mass, so they must agree).
+        load_unit: for reports, e.g. ``N``.
+    """
+
+    def __init__(
+        self,
+        path: str,
+        load_columns: list[str],
+        channel_columns: list[str] | None = None,
+        time_column: str | None = None,
+        columns: list[str] | None = None,
+        magnitude: float | None = None,
+        mass: float | None = None,
+        mirror_hint: dict | None = None,
+        known_load_tolerance: float = 0.02,
+        load_unit: str = "N",
+        batch_size: int | None = None,
+    ) -> None:
+        super().__init__(batch_size=batch_size)
+        self.path = Path(path)
+        self.load_columns = list(load_columns)
+        self.channel_columns = list(channel_columns) if channel_columns else None
+        self.time_column = time_column
+        self.columns = columns
+        self.magnitude = magnitude
+        self.mass = mass
+        self.mirror_hint = mirror_hint
+        self.known_load_tolerance = known_load_tolerance
+        self.load_unit = load_unit
+
+    def load_magnitude(self) -> float:
+        if (self.magnitude is None) == (self.mass is None):
+            raise SfmnetError("give the calibration load as exactly one of data.magnitude (load units) or data.mass (kg)")
+        value = self.magnitude if self.magnitude is not None else self.mass * STANDARD_GRAVITY
+        if not value > 0:
+            raise SfmnetError(f"the load magnitude must be positive, got {value}")
+        return float(value)
+
+    def build(self) -> CalibrationData:
+        table = read_table(self.path, self.columns)
+        table.require(self.load_columns, "load")
+        excluded = {*self.load_columns, *([self.time_column] if self.time_column else [])}
+        # Numeric columns with a few bad cells stay in, so their cells are reported, not skipped.
+        candidates = [name for name in [*table.columns, *table.text] if name in table.columns or name in table.corrupt]
+        channels = self.channel_columns or [name for name in candidates if name not in excluded]
+        if len(channels) < len(self.load_columns):
+            raise SfmnetError(
+                f"{len(channels)} channel columns for {len(self.load_columns)} load axes: a calibration needs at "
+                "least as many channels as axes; list them with data.channel_columns=[...]"
+            )
+        readings = table.numeric(channels, "channel")
+        check_finite(readings, channels, self.path, "reading")
+        constant = [name for name, spread in zip(channels, readings.std(axis=0)) if spread == 0]
+        if constant:
+            raise SfmnetError(
+                f"channel {', '.join(constant)} of {self.path} is constant: it carries no load information; "
+                "leave it out with data.channel_columns=[...]"
+            )
+        loads = table.numeric(self.load_columns, "load")
+        loads[~np.isfinite(loads)] = np.nan
+        partial = np.isnan(loads).any(axis=1) & ~np.isnan(loads).all(axis=1)
+        if partial.any():
+            raise SfmnetError(
+                f"{self.path} line {int(np.argmax(partial)) + 2} gives only some of {', '.join(self.load_columns)}: "
+                "fill every load column on a known row, or none"
+            )
+        magnitude = self.load_magnitude()
+        self.check_known_magnitudes(loads, magnitude)
+        recording = CalibrationRecording(
+            readings=torch.from_numpy(readings),
+            loads=torch.from_numpy(loads),
+            magnitude=magnitude,
+            mirror_hint=self.parse_mirror_hint(loads),
+        )
+        return CalibrationData(
+            recordings={"rotation": recording}, channels=channels, axes=self.load_columns, load_unit=self.load_unit
+        )
+
+    def check_known_magnitudes(self, loads: np.ndarray, magnitude: float) -> None:
+        known = ~np.isnan(loads).any(axis=1)
+        norms = np.linalg.norm(loads[known], axis=1)
+        off = np.abs(norms / magnitude - 1) > self.known_load_tolerance
+        if off.any():
+            line = int(np.nonzero(known)[0][np.argmax(off)]) + 2
+            raise SfmnetError(
+                f"the known load on line {line} of {self.path} has magnitude {norms[np.argmax(off)]:.6g} but "
+                f"data.magnitude is {magnitude:.6g} ({100 * self.known_load_tolerance:g} % allowed): the known "
+                "loads must be the calibration mass; check the load columns, units and data.magnitude"
+            )
+
+    def parse_mirror_hint(self, loads: np.ndarray) -> MirrorHint | None:
+        if self.mirror_hint is None:
+            return None
+        hint = dict(self.mirror_hint)
+        if set(hint) != {"row", "axis", "sign"}:
+            raise SfmnetError("data.mirror_hint needs exactly row, axis and sign, e.g. {row: 17, axis: fz, sign: 1}")
+        axis = hint["axis"]
+        if axis not in self.load_columns:
+            raise SfmnetError(f"data.mirror_hint.axis '{axis}' is not one of the load columns {self.load_columns}")
+        unknown = np.isnan(loads).any(axis=1)
+        row = int(hint["row"])
+        if not 0 <= row < len(loads) or not unknown[row]:
+            raise SfmnetError(f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown")
+        return MirrorHint(sample=int(unknown[:row].sum()), axis=self.load_columns.index(axis), sign=int(hint["sign"]))

@@ -1,0 +1,141 @@
+"""Reading a table of named numeric columns from CSV, ``.npy`` or ``.npz``, with errors a user can act on."""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sfmnet.errors import SfmnetError
+
+
+@dataclass(frozen=True)
+class Table:
+    """Columns by name, each a float64 array of the same length; NaN where a cell was empty.
+
+    Attributes:
+        path: where it was read from (for messages).
+        columns: name -> values, in file order.
+        text: name -> the first offending cells, for columns that are not all numeric (e.g. labels).
+        corrupt: the text columns that are mostly numbers: numeric columns with bad cells.
+    """
+
+    path: Path
+    columns: dict[str, np.ndarray]
+    text: dict[str, list[str]]
+    corrupt: frozenset[str] = frozenset()
+
+    @property
+    def rows(self) -> int:
+        return len(next(iter(self.columns.values()))) if self.columns else 0
+
+    def require(self, names: list[str], role: str) -> None:
+        """Raise a clear error naming each missing column and its closest match."""
+        for name in names:
+            if name not in self.columns and name not in self.text:
+                close = difflib.get_close_matches(name, [*self.columns, *self.text], n=1)
+                hint = f" (did you mean '{close[0]}'?)" if close else ""
+                raise SfmnetError(
+                    f"{role} column '{name}' is not in {self.path}{hint}; its columns are: "
+                    f"{', '.join([*self.columns, *self.text])}"
+                )
+            if name in self.text:
+                raise SfmnetError(f"{role} column '{name}' of {self.path} is not numeric: {self.text[name]}")
+
+    def numeric(self, names: list[str], role: str) -> np.ndarray:
+        """``rows x len(names)`` float64, after :meth:`require`."""
+        self.require(names, role)
+        return np.stack([self.columns[name] for name in names], axis=1)
+
+
+def read_table(path: Path, columns: list[str] | None = None) -> Table:
+    """Read a CSV (header row, one sample per row), ``.npy`` (needs ``columns``) or ``.npz`` (one array per column).
+
+    Empty cells become NaN. A column with any non-numeric, non-empty cell is kept as text and
+    refused where a number is needed.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise SfmnetError(f"{path} does not exist: check data.path")
+    if path.is_dir():
+        raise SfmnetError(f"{path} is a directory: data.path needs a file (.csv, .npy or .npz)")
+    try:
+        if path.suffix == ".npy":
+            return _from_array(path, np.load(path, allow_pickle=False), columns)
+        if path.suffix == ".npz":
+            with np.load(path, allow_pickle=False) as archive:
+                return Table(path, {k: np.asarray(archive[k], dtype=np.float64).ravel() for k in archive.files}, {})
+        return _read_csv(path)
+    except PermissionError:
+        raise SfmnetError(f"{path} cannot be read (permission denied): check the file's permissions") from None
+    except (ValueError, OSError) as error:
+        if isinstance(error, SfmnetError):
+            raise
+        raise SfmnetError(f"{path} cannot be read as {path.suffix or 'CSV'}: {error}") from None
+
+
+def _from_array(path: Path, array: np.ndarray, columns: list[str] | None) -> Table:
+    if array.ndim != 2:
+        raise SfmnetError(f"{path} holds a {array.ndim}-D array: give a 2-D array, one row per sample")
+    if not columns or len(columns) != array.shape[1]:
+        raise SfmnetError(
+            f"{path} has {array.shape[1]} columns: name them all with data.columns=[...] ({len(columns or [])} given)"
+        )
+    return Table(path, {name: array[:, i].astype(np.float64) for i, name in enumerate(columns)}, {})
+
+
+def _read_csv(path: Path) -> Table:
+    with path.open(newline="") as stream:
+        rows = list(csv.reader(stream))
+    rows = [row for row in rows if any(cell.strip() for cell in row)]
+    if not rows:
+        raise SfmnetError(f"{path} is empty: give a CSV with a header row and one row per sample")
+    header = [name.strip() for name in rows[0]]
+    duplicates = sorted({name for name in header if header.count(name) > 1})
+    if duplicates:
+        raise SfmnetError(f"{path} has duplicate column names: {', '.join(duplicates)}; rename them")
+    body = rows[1:]
+    if not body:
+        raise SfmnetError(f"{path} has a header but no data rows")
+    for number, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise SfmnetError(f"{path} line {number} has {len(row)} cells but the header has {len(header)}")
+    columns: dict[str, np.ndarray] = {}
+    text: dict[str, list[str]] = {}
+    corrupt: set[str] = set()
+    for index, name in enumerate(header):
+        cells = [row[index].strip() for row in body]
+        values = [_number(cell) for cell in cells]
+        if any(value is None for value in values):
+            bad = [(line, cell) for line, (cell, value) in enumerate(zip(cells, values), start=2) if value is None]
+            text[name] = [f"line {line}: '{cell}'" for line, cell in bad[:3]] + ([f"... {len(bad)} cells"] if len(bad) > 3 else [])
+            if len(bad) < len(cells) / 2:
+                corrupt.add(name)
+        else:
+            columns[name] = np.array(values, dtype=np.float64)
+    return Table(path, columns, text, frozenset(corrupt))
+
+
+def _number(cell: str) -> float | None:
+    if cell == "":
+        return math.nan
+    try:
+        return float(cell)
+    except ValueError:
+        return None
+
+
+def check_finite(values: np.ndarray, names: list[str], path: Path, role: str) -> None:
+    """Refuse NaN or infinite readings, saying how many and where."""
+    bad = ~np.isfinite(values)
+    if bad.any():
+        rows, cols = np.nonzero(bad)
+        where = ", ".join(f"line {r + 2} column {names[c]}" for r, c in zip(rows[:3], cols[:3]))
+        raise SfmnetError(
+            f"{path} has {int(bad.sum())} empty, NaN or infinite {role} values (first: {where}): "
+            "remove or repair those rows"
+        )

@@ -1,0 +1,163 @@
+"""Your own recording in, calibration out, loads out: the file contracts and their errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from sfmnet.apply import apply_calibration
+from sfmnet.data.simulated_sensor import ForceSensor3DataModule
+from sfmnet.errors import SfmnetError
+from sfmnet.training.run import train
+from tests.conftest import compose_config, write_session
+from tests.test_cli import QUIET, sfmnet
+
+
+def csv_config(path: Path, *overrides: str):
+    return compose_config(
+        ["experiment=calibrate_csv", f"data.path={path}", "data.magnitude=9.81", "data.time_column=time", *overrides]
+    )
+
+
+def test_csv_contract_end_to_end(tmp_path: Path):
+    session = tmp_path / "session.csv"
+    truth = write_session(session)
+    run_dir = tmp_path / "run"
+    result = sfmnet(
+        "train", "experiment=calibrate_csv", f"data.path={session}", "data.magnitude=9.81",
+        "data.load_columns=[fx,fy,fz]", "data.time_column=time", f"hydra.run.dir={run_dir}", *QUIET,
+    )
+    assert result.returncode == 0, result.stderr
+    calibration = json.loads((run_dir / "calibration.json").read_text())
+    matrix = torch.tensor(calibration["matrix"], dtype=torch.float64)
+    assert calibration["channels"] == [f"s{i}" for i in range(6)] and calibration["axes"] == ["fx", "fy", "fz"]
+    assert len(calibration["matrix_std"]) == 3 and len(calibration["offset_std"]) == 6
+    assert float((matrix - truth).norm() / truth.norm()) < 0.02
+
+    output = tmp_path / "loads.csv"
+    applied = sfmnet("apply", f"calibration={run_dir / 'calibration.json'}", f"input={session}", f"output={output}")
+    assert applied.returncode == 0, applied.stderr
+    rows = list(csv.DictReader(output.open()))
+    assert list(rows[0])[-3:] == ["fx_calibrated", "fy_calibrated", "fz_calibrated"]
+    assert rows[0]["time"] == "0.00"  # the input's columns are kept as they were
+    magnitudes = [math.dist([0, 0, 0], [float(r[f"{a}_calibrated"]) for a in "fx fy fz".split()]) for r in rows]
+    assert abs(np.mean(magnitudes) / 9.81 - 1) < 0.005
+
+
+def test_npz_input(tmp_path: Path):
+    datamodule = ForceSensor3DataModule(magnitude=9.81, known_loads=3, mirror_hint=False)
+    datamodule.setup()
+    recording = datamodule.data.recordings["rotation"]
+    arrays = {f"s{i}": recording.readings[:, i].numpy() for i in range(6)}
+    arrays.update({axis: recording.loads[:, i].numpy() for i, axis in enumerate(["fx", "fy", "fz"])})
+    np.savez(tmp_path / "session.npz", **arrays)
+    cfg = compose_config(["experiment=calibrate_csv", f"data.path={tmp_path / 'session.npz'}", "data.mass=1.0003"])
+    metrics = train(cfg, tmp_path / "run")
+    assert metrics["rank_gap"] > 10
+
+
+def set_cell(line: int, column: int, value: str):
+    def edit(rows: list[list[str]]) -> None:
+        rows[line - 1][column] = value
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    "edit,overrides,message",
+    [
+        (None, ["data.load_columns=[fx,fy,fzz]"], "load column 'fzz' is not in .* \\(did you mean 'fz'\\?\\)"),
+        (None, ["data.channel_columns=[s0,s1,s9]"], "channel column 's9' is not in"),
+        (set_cell(5, 2, "n/a"), [], "channel column 's1' of .* is not numeric: \\[\"line 5: 'n/a'\"\\]"),
+        (set_cell(7, 3, "nan"), [], "1 empty, NaN or infinite reading values \\(first: line 7 column s2\\)"),
+        (set_cell(9, 1, "inf"), [], "1 empty, NaN or infinite reading values \\(first: line 9 column s0\\)"),
+        (None, ["data.magnitude=12.0"], "the known load on line .* has magnitude 9.81 but data.magnitude is 12"),
+        (None, ["data.mass=1.0"], "exactly one of data.magnitude .* or data.mass"),
+        (None, ["data.channel_columns=[s0,s1]"], "2 channel columns for 3 load axes"),
+    ],
+    ids=["misspelt-load-column", "missing-channel", "non-numeric", "nan", "inf", "wrong-magnitude", "two-magnitudes", "too-few-channels"],
+)
+def test_bad_files_are_refused(tmp_path: Path, edit, overrides: list[str], message: str):
+    session = tmp_path / "session.csv"
+    write_session(session, edit=edit)
+    with pytest.raises(SfmnetError, match=message):
+        train(csv_config(session, *overrides), tmp_path / "run")
+    assert not (tmp_path / "run" / "calibration.json").exists()
+
+
+def test_constant_channel_is_refused(tmp_path: Path):
+    def flatten(rows):
+        for row in rows[1:]:
+            row[4] = "0.5"
+
+    session = tmp_path / "session.csv"
+    write_session(session, edit=flatten)
+    with pytest.raises(SfmnetError, match="channel s3 of .* is constant"):
+        train(csv_config(session), tmp_path / "run")
+
+
+def test_too_few_distinct_orientations(tmp_path: Path):
+    def keep_head(rows):
+        del rows[9:-3]  # eight unknown orientations, three known loads
+
+    session = tmp_path / "session.csv"
+    write_session(session, edit=keep_head)
+    with pytest.raises(SfmnetError, match="only 8 samples for 9 unknowns of the metric constraint with offsets"):
+        train(csv_config(session), tmp_path / "run")
+
+
+def test_two_known_loads_need_the_mirror_bit(tmp_path: Path):
+    session = tmp_path / "session.csv"
+    truth = write_session(session, known_loads=2)
+    with pytest.raises(SfmnetError, match="only up to a mirror image: set frame.mirror_hint|mirror_hint"):
+        train(csv_config(session), tmp_path / "run")
+    # Give the bit: row 0's fz sign, read off the simulated truth.
+    loads = ForceSensor3DataModule(magnitude=9.81, offset_scale=0.2, known_loads=2, mirror_hint=False)
+    loads.setup()
+    sign = 1 if float(loads.data.recordings["rotation"].readings[0] @ truth[2]) > 0 else -1
+    cfg = csv_config(session, f"+data.mirror_hint={{row: 0, axis: fz, sign: {sign}}}")
+    train(cfg, tmp_path / "run2")
+    matrix = torch.tensor(json.loads((tmp_path / "run2" / "calibration.json").read_text())["matrix"])
+    assert float((matrix - truth).norm() / truth.norm()) < 0.05
+
+
+def test_apply_refuses_other_channels_and_existing_output(tmp_path: Path):
+    session = tmp_path / "session.csv"
+    write_session(session)
+    train(csv_config(session), tmp_path / "run")
+    calibration = tmp_path / "run" / "calibration.json"
+    other = tmp_path / "other.csv"
+    other.write_text("a,b,c\n1,2,3\n")
+    with pytest.raises(SfmnetError, match="lacks channels s0, s1, s2, s3, s4, s5 of the calibration"):
+        apply_calibration(calibration, other, tmp_path / "out.csv", overwrite=False)
+    output = tmp_path / "out.csv"
+    output.write_text("mine\n")
+    with pytest.raises(SfmnetError, match="already exists"):
+        apply_calibration(calibration, session, output, overwrite=False)
+    assert output.read_text() == "mine\n"
+    apply_calibration(calibration, session, output, overwrite=True)
+    assert output.read_text().startswith("time,s0")
+
+
+@pytest.mark.parametrize(
+    "content,message",
+    [("", "is empty"), ("{not json", "cannot be read as JSON"), ('{"matrix": [[1]]}', "lacks axes, channels, offset")],
+)
+def test_apply_refuses_bad_calibration_files(tmp_path: Path, content: str, message: str):
+    session = tmp_path / "session.csv"
+    write_session(session)
+    calibration = tmp_path / "calibration.json"
+    calibration.write_text(content)
+    with pytest.raises(SfmnetError, match=message):
+        apply_calibration(calibration, session, tmp_path / "out.csv", overwrite=False)
+
+
+def test_apply_refuses_missing_calibration(tmp_path: Path):
+    with pytest.raises(SfmnetError, match="does not exist"):
+        apply_calibration(tmp_path / "none.json", tmp_path / "in.csv", tmp_path / "out.csv", overwrite=False)

@@ -1,0 +1,70 @@
+"""Error bars (Cramer-Rao, NOTES 5) that a user can trust: about 68 % of entries within one standard error."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from sfmnet.data.simulated_sensor import ForceSensor3DataModule
+from sfmnet.models.shape_from_motion import ShapeFromMotion
+
+
+def refined(model: ShapeFromMotion, recording) -> ShapeFromMotion:
+    """The closed form, then the same L-BFGS refinement the trainer runs (conf/optimizer/lbfgs.yaml)."""
+    model.initialise(recording)
+    optimizer = torch.optim.LBFGS(
+        [p for p in model.parameters() if p.requires_grad],
+        max_iter=50, history_size=50, line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-14,
+    )
+    batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
+
+    def closure() -> torch.Tensor:
+        optimizer.zero_grad()
+        loss = model.loss(batch)["loss"]
+        loss.backward()
+        return loss
+
+    for _ in range(5):
+        optimizer.step(closure)
+    return model
+
+
+@pytest.mark.parametrize("channels", [6, 16])
+def test_error_bars_are_honest(channels: int):
+    """Offsets, orientations crowded towards one pole, n - 1 known loads and the mirror bit."""
+    scores = []
+    for seed in range(20):
+        datamodule = ForceSensor3DataModule(
+            magnitude=9.81, channels=channels, samples=150, known_loads=2, offset_scale=0.3,
+            orientation_bias=0.7, errors={"angle_error_deg": 0.0}, seed=seed,
+        )
+        datamodule.setup()
+        recording = datamodule.data.recordings["rotation"]
+        model = refined(ShapeFromMotion(estimate_offset=True), recording)
+        bars = model.uncertainty(recording)
+        truth = datamodule.data.truth
+        scores.append(((model.calibration_matrix() - truth.matrix) / bars.matrix_std).flatten())
+        scores.append((model.physical_offset() - truth.offset) / bars.offset_std)
+    scores = torch.cat(scores)
+    within = float((scores.abs() < 1).double().mean())
+    rms = float(scores.pow(2).mean().sqrt())
+    assert 0.62 < within < 0.75, within
+    assert 0.85 < rms < 1.2, rms
+
+
+def test_error_bars_shrink_with_more_samples_except_the_frame():
+    """Offsets come from every orientation; the frame's rotation only from the few known loads."""
+    bars = {}
+    for samples in (50, 800):
+        datamodule = ForceSensor3DataModule(magnitude=9.81, samples=samples, known_loads=3, mirror_hint=False, offset_scale=0.2)
+        datamodule.setup()
+        recording = datamodule.data.recordings["rotation"]
+        model = ShapeFromMotion()
+        model.initialise(recording)
+        bars[samples] = model.uncertainty(recording)
+    # 16 times the samples: a quarter of the offsets' standard errors ...
+    offset_ratio = float(bars[800].offset_std.norm() / bars[50].offset_std.norm())
+    assert offset_ratio == pytest.approx(0.25, rel=0.25)
+    # ... but the matrix, whose orientation rests on three known loads, gains far less.
+    matrix_ratio = float(bars[800].matrix_std.norm() / bars[50].matrix_std.norm())
+    assert 0.5 < matrix_ratio < 1.0
