@@ -18,12 +18,14 @@ class CalibrationRecording:
         loads: ``f x n`` load units; NaN on the rows whose load is unknown.
         magnitude: ``F``, the constant load magnitude of the unknown rows (load units).
         mirror_hint: the bit that picks the frame's mirror side when only ``n - 1`` loads are known.
+        true_loads: ``f x n``, the loads really applied, where known (simulations).
     """
 
     readings: torch.Tensor
     loads: torch.Tensor
     magnitude: float = float("nan")
     mirror_hint: MirrorHint | None = None
+    true_loads: torch.Tensor | None = None
 
     @property
     def known(self) -> torch.Tensor:

@@ -162,7 +162,9 @@ def rotation_recording(
     if mirror_hint:
         row = int(unknown[:, -1].abs().argmax())
         hint = MirrorHint(sample=row, axis=n - 1, sign=1 if unknown[row, -1] > 0 else -1)
-    return CalibrationRecording(readings=readings, loads=believed, magnitude=magnitude, mirror_hint=hint)
+    return CalibrationRecording(
+        readings=readings, loads=believed, magnitude=magnitude, mirror_hint=hint, true_loads=loads
+    )
 
 
 def least_squares_recording(

@@ -7,17 +7,19 @@ import torch
 
 @torch.no_grad()
 def constrained_motion(
-    readings: torch.Tensor,
-    shape: torch.Tensor,
-    metric_weight: float,
-    iterations: int = 50,
-    tolerance: float = 1e-13,
+    readings: torch.Tensor, shape: torch.Tensor, metric_weight: float, iterations: int = 80
 ) -> torch.Tensor:
-    """Per row, ``argmin_m |z - m S|^2 + w ((|m|^2 - 1) / 2)^2`` (loads in units of ``F``).
+    """Per row, the global ``argmin_m |z - m S|^2 + w ((|m|^2 - 1) / 2)^2`` (loads in units of ``F``).
 
     With ``w = 0`` this is the least-squares projection ``z pinv(S)``; as ``w`` grows the rows
-    are pulled onto the unit sphere, the metric constraint. Solved by Newton steps from the
-    projection, dropping the constraint's negative curvature so each step is a descent step.
+    are pulled onto the unit sphere, the metric constraint. Stationarity reads
+    ``(G + s I) m = S z^T`` with ``G = S S^T`` and ``s = w (|m|^2 - 1) / 2``; in the eigenbasis
+    of ``G`` (eigenvalues ``g_i``, ``c = V^T S z^T``) that is one equation in ``s``,
+
+        phi(s) = s - w/2 (sum_i c_i^2 / (g_i + s)^2 - 1) = 0,
+
+    increasing on ``s > -g_min``, so it has one root there and it gives the global minimum
+    (as for the trust-region subproblem). It is found by bisection, for every row at once.
 
     Eliminating ``M`` this way leaves a small, well-conditioned problem in ``S`` (and ``o``)
     for the trainer's optimiser; by the envelope theorem the loss gradient with respect to
@@ -28,26 +30,28 @@ def constrained_motion(
         readings: ``b x p`` (offsets removed).
         shape: ``n x p``.
         metric_weight: ``w``.
-        iterations: at most this many Newton steps.
-        tolerance: stop once no entry moves by more than this (units of ``F``).
+        iterations: bisection steps (each halves the bracket).
 
     Returns:
         ``b x n``.
     """
-    gram = shape @ shape.T
-    target = readings @ shape.T
-    motion = torch.linalg.solve(gram, target.T).T
+    eigenvalues, basis = torch.linalg.eigh(shape @ shape.T)
+    coefficients = readings @ shape.T @ basis
     if metric_weight == 0:
-        return motion
-    eye = torch.eye(shape.shape[0], dtype=shape.dtype, device=shape.device)
+        return (coefficients / eigenvalues) @ basis.T
+
+    def phi(s: torch.Tensor) -> torch.Tensor:
+        norm2 = (coefficients / (eigenvalues + s[:, None])).pow(2).sum(dim=1)
+        return s - metric_weight / 2 * (norm2 - 1)
+
+    low = torch.full((len(readings),), -float(eigenvalues[0]), dtype=readings.dtype, device=readings.device)
+    high = torch.ones_like(low)
+    while bool((phi(high) < 0).any()):
+        high = torch.where(phi(high) < 0, 2 * high, high)
     for _ in range(iterations):
-        excess = motion.pow(2).sum(dim=1, keepdim=True) - 1
-        gradient = 2 * (motion @ gram - target) + metric_weight * excess * motion
-        hessian = 2 * gram + metric_weight * (
-            excess.clamp_min(0)[:, :, None] * eye + 2 * motion[:, :, None] * motion[:, None, :]
-        )
-        step = torch.linalg.solve(hessian, gradient[:, :, None])[:, :, 0]
-        motion = motion - step
-        if float(step.abs().max()) < tolerance:
-            break
-    return motion
+        middle = (low + high) / 2
+        below = phi(middle) < 0
+        low = torch.where(below, middle, low)
+        high = torch.where(below, high, middle)
+    s = (low + high) / 2
+    return (coefficients / (eigenvalues + s[:, None])) @ basis.T
