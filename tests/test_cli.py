@@ -66,7 +66,7 @@ def test_multirun_sweep_writes_summary(tmp_path: Path):
         # With noise, degenerate motion shows as an indefinite Q or as poor coverage.
         (["data.motion_span=1"], "the loads are collinear or coplanar"),
         (["experiment=lord3dof", "data.known_loads=3", "data.motion_span=2"], "the loads are collinear or coplanar"),
-        (["data.samples=2"], "only 2 samples for 5 unknowns of the metric constraint with offsets"),
+        (["data.samples=2"], "only 3 samples for 5 unknowns of the metric constraint with offsets"),
         (["experiment=lord3dof", "data.mirror_hint=false"], "fix the 3-axis frame only up to a mirror image"),
         (["model.rank=3"], "model.rank is 3 but the data has 2 load axes"),
         (["model=least_squares"], "learns from a 'least_squares' recording, which this data does not have"),

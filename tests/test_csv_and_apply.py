@@ -104,7 +104,7 @@ def test_constant_channel_is_refused(tmp_path: Path):
 
 def test_too_few_distinct_orientations(tmp_path: Path):
     def keep_head(rows):
-        del rows[9:-3]  # eight unknown orientations, three known loads
+        del rows[6:-3]  # five unknown orientations and three known loads: eight samples
 
     session = tmp_path / "session.csv"
     write_session(session, edit=keep_head)

@@ -65,15 +65,16 @@ class ShapeFromMotion(LinearCalibrator):
         constrained = self.metric_weight > 0
         if constrained and not math.isfinite(magnitude):
             raise SfmnetError("the metric constraint needs the load magnitude: set data.magnitude (load units)")
-        unknown = recording.readings[~recording.known]
+        # Every row of a rotation recording is the same mass, known loads included.
+        readings = recording.readings
         needed = metric_unknowns(self.rank, self.estimate_offset) if constrained else self.rank + self.estimate_offset
-        if len(unknown) < needed:
+        if len(readings) < needed:
             raise SfmnetError(
-                f"only {len(unknown)} samples for {needed} unknowns of the metric constraint"
+                f"only {len(readings)} samples for {needed} unknowns of the metric constraint"
                 f"{' with offsets' if self.estimate_offset else ''}: record at least {needed} orientations "
                 "(dozens give a good calibration)"
             )
-        factors = truncated_svd_factors(unknown, self.rank, centre=self.estimate_offset)
+        factors = truncated_svd_factors(readings, self.rank, centre=self.estimate_offset)
         self.singular_values = factors.singular_values
         shape, offset = factors.shape, factors.mean
         if constrained and self.estimate_offset:
@@ -84,7 +85,7 @@ class ShapeFromMotion(LinearCalibrator):
             _, shape = metric_upgrade(factors, metric_gram(factors.motion, magnitude))
         self.set_solution(shape, offset, recording.readings, load_scale=magnitude if constrained else 1.0)
         if constrained:
-            self.coverage = require_coverage(self.motion_of(unknown), magnitude)
+            self.coverage = require_coverage(self.motion_of(readings), magnitude)
         self.orient(recording)
 
     def motion(self, readings: torch.Tensor, loads: torch.Tensor) -> torch.Tensor:
