@@ -1,13 +1,14 @@
 """Calibration error against the Cramer-Rao bound, closed form and refined, at falling SNR (issue 3, NOTES 5).
 
 For each SNR (``F |s| / noise``, i.e. ``1 / data.noise_fraction``) and sensor (2-axis fingertip,
-3-axis force), ``--trials`` sessions with no known loads and tared readings, as in NOTES 5.
-Error: the shape ``S`` after the best orthogonal alignment to the truth. Bound: the trace of
-the Cramer-Rao bound of ``S`` at the true loads and noise, the rotation gauge removed by the
-pseudo-inverse. Printed: ``sqrt(mean error^2 / mean bound)``. The refined estimate is the
+3-axis force), ``--trials`` sessions with tared readings and no known loads, as in NOTES 5
+(or ``n`` exact known loads with ``--known-loads``).
+Error: the shape ``S`` (after the best orthogonal alignment to the truth when no load fixes the
+frame). Bound: the trace of the Cramer-Rao bound of ``S`` at the true loads and noise (the
+rotation gauge removed by the pseudo-inverse when no load fixes the frame). Printed: ``sqrt(mean error^2 / mean bound)``. The refined estimate is the
 closed form followed by the trainer's L-BFGS steps (conf/optimizer/lbfgs.yaml). Run by hand:
 
-    python bench/crb_ratio.py --trials 100
+    python bench/crb_ratio.py --trials 100 [--known-loads]
 """
 
 from __future__ import annotations
@@ -28,41 +29,45 @@ from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import LearnerModule
 
 SENSORS = {
-    "2-axis fingertip, p=4, f=96": (FingertipDataModule, {"magnitude": 111.4, "samples": 96}),
-    "3-axis force, p=6, f=200": (ForceSensor3DataModule, {"magnitude": 9.81, "samples": 200}),
+    "2-axis fingertip, p=4, f=96": (FingertipDataModule, {"magnitude": 111.4, "samples": 96}, 2),
+    "3-axis force, p=6, f=200": (ForceSensor3DataModule, {"magnitude": 9.81, "samples": 200}, 3),
 }
 
 
-def aligned_error2(shape: torch.Tensor, truth: torch.Tensor) -> float:
-    rotation = orthogonal_procrustes(shape.T, truth.T)
-    return float((rotation.T @ shape - truth).pow(2).sum())
+def error2(shape: torch.Tensor, truth: torch.Tensor, align: bool) -> float:
+    """Squared error of ``S``, after the best orthogonal alignment when the frame is free."""
+    if align:
+        shape = orthogonal_procrustes(shape.T, truth.T).T @ shape
+    return float((shape - truth).pow(2).sum())
 
 
-def trial(module_cls, kwargs: dict, snr: float, seed: int, optimizer_cfg) -> tuple[float, float, float]:
+def trial(module_cls, kwargs: dict, known_loads: int, snr: float, seed: int, optimizer_cfg) -> tuple[float, float, float]:
     datamodule = module_cls(
-        noise_fraction=1 / snr, known_loads=0, mirror_hint=False, offset_scale=0.0, seed=seed, **kwargs
+        noise_fraction=1 / snr, known_loads=known_loads, mirror_hint=False, offset_scale=0.0, seed=seed, errors={"angle_error_deg": 0.0}, **kwargs
     )
     datamodule.setup()
     recording = datamodule.data.recordings["rotation"]
     truth = torch.linalg.pinv(datamodule.data.truth.matrix.T)
     noise_std = (1 / snr) * float(truth.norm(dim=0).mean()) * recording.magnitude
-    information = shape_information(truth, recording.loads[:0], recording.true_loads, estimate_offset=False)
+    known = recording.known
+    information = shape_information(truth, recording.true_loads[known], recording.true_loads[~known], estimate_offset=False)
     bound = noise_std**2 * float(torch.linalg.pinv(information, hermitian=True).diagonal().sum())
     model = ShapeFromMotion(estimate_offset=False)
     model.initialise(recording)
-    closed_form = aligned_error2(model.physical_shape(), truth)
+    closed_form = error2(model.physical_shape(), truth, align=known_loads == 0)
     trainer = L.Trainer(
         max_epochs=10, precision="64-true", accelerator="cpu", logger=False, enable_checkpointing=False,
         enable_progress_bar=False, enable_model_summary=False,
     )
     trainer.fit(LearnerModule(model, instantiate(optimizer_cfg)), datamodule=datamodule)
-    return closed_form, aligned_error2(model.physical_shape(), truth), bound
+    return closed_form, error2(model.physical_shape(), truth, align=known_loads == 0), bound
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--snr", type=float, nargs="+", default=[100, 20, 5, 2])
+    parser.add_argument("--known-loads", action="store_true", help="add n exact known loads (else none, as NOTES 5)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     import logging
@@ -72,9 +77,12 @@ def main() -> None:
     optimizer_cfg = OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml")
     print("| sensor | SNR | closed form / CRB | refined / CRB |")
     print("|---|---|---|---|")
-    for name, (module_cls, kwargs) in SENSORS.items():
+    for name, (module_cls, kwargs, rank) in SENSORS.items():
+        known = rank if args.known_loads else 0
         for snr in args.snr:
-            results = torch.tensor([trial(module_cls, kwargs, snr, seed, optimizer_cfg) for seed in range(args.trials)])
+            results = torch.tensor(
+                [trial(module_cls, kwargs, known, snr, seed, optimizer_cfg) for seed in range(args.trials)]
+            )
             closed, refined, bound = results.mean(dim=0)
             print(f"| {name} | {snr:g} | {float((closed / bound).sqrt()):.2f} | {float((refined / bound).sqrt()):.2f} |", flush=True)
 
