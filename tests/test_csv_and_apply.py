@@ -115,13 +115,13 @@ def test_too_few_distinct_orientations(tmp_path: Path):
 def test_two_known_loads_need_the_mirror_bit(tmp_path: Path):
     session = tmp_path / "session.csv"
     truth = write_session(session, known_loads=2)
-    with pytest.raises(SfmnetError, match="only up to a mirror image: set frame.mirror_hint|mirror_hint"):
+    with pytest.raises(SfmnetError, match="only up to a mirror image: set data.mirror_hint="):
         train(csv_config(session), tmp_path / "run")
-    # Give the bit: row 0's fz sign, read off the simulated truth.
-    loads = ForceSensor3DataModule(magnitude=9.81, offset_scale=0.2, known_loads=2, mirror_hint=False)
-    loads.setup()
-    sign = 1 if float(loads.data.recordings["rotation"].readings[0] @ truth[2]) > 0 else -1
-    cfg = csv_config(session, f"+data.mirror_hint={{row: 0, axis: fz, sign: {sign}}}")
+    # Give the bit: the sign of row 0's true fz (write_session simulates this same session).
+    session_data = ForceSensor3DataModule(magnitude=9.81, offset_scale=0.2, known_loads=2, mirror_hint=False)
+    session_data.setup()
+    sign = 1 if float(session_data.data.recordings["rotation"].true_loads[0, 2]) > 0 else -1
+    cfg = csv_config(session, f"data.mirror_hint={{row: 0, axis: fz, sign: {sign}}}")
     train(cfg, tmp_path / "run2")
     matrix = torch.tensor(json.loads((tmp_path / "run2" / "calibration.json").read_text())["matrix"])
     assert float((matrix - truth).norm() / truth.norm()) < 0.05

@@ -76,8 +76,8 @@ def frame_rotation(
     if hint is None or hint_motion is None:
         raise SfmnetError(
             f"{span} known loads fix the {n}-axis frame only up to a mirror image: set "
-            "frame.mirror_hint={sample: <row>, axis: <axis>, sign: <+1|-1>} (the rough sign of one "
-            f"load component you know), or give {n} non-coplanar known loads"
+            "data.mirror_hint={row: <row>, axis: <axis>, sign: <1|-1>} (the rough sign of one unknown "
+            f"row's load component), or give {n} non-coplanar known loads"
         )
     if not 0 <= hint.axis < n or hint.sign not in (-1, 1):
         raise SfmnetError(
