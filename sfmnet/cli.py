@@ -68,7 +68,7 @@ def exit_on_user_error(action: Callable[[], object]) -> None:
 
 def refuse_used_run_dir(overrides: list[str]) -> None:
     """A run never writes into a directory that already holds files (a DDP worker re-enters its own)."""
-    if "-m" in overrides or "--multirun" in overrides or os.environ.get("LOCAL_RANK", "0") != "0":
+    if "-m" in overrides or "--multirun" in overrides:
         return
     for item in overrides:
         if item.startswith("hydra.run.dir="):
@@ -77,6 +77,17 @@ def refuse_used_run_dir(overrides: list[str]) -> None:
                 raise SfmnetError(
                     f"run directory {run_dir} already holds files: give a new hydra.run.dir so nothing is overwritten"
                 )
+
+
+def check_train_arguments(args: list[str]) -> None:
+    """Typos and used run directories, caught before Hydra starts (a DDP worker re-enters checked)."""
+    if os.environ.get("LOCAL_RANK", "0") != "0" or "--help" in args or "-h" in args:
+        return
+    refuse_used_run_dir(args)
+    if "-m" not in args and "--multirun" not in args:
+        from sfmnet.config_check import check_overrides
+
+        check_overrides(args, config_dir())
 
 
 def train_command() -> None:
@@ -114,6 +125,6 @@ def main(argv: list[str] | None = None) -> None:
             print(f"error: unknown command '{command}': use one of {', '.join(COMMANDS)} (python -m sfmnet --help)", file=sys.stderr)
             sys.exit(2)
     if command == "train":
-        exit_on_user_error(lambda: refuse_used_run_dir(args))
+        exit_on_user_error(lambda: check_train_arguments(args))
     sys.argv = [sys.argv[0], *args]
     COMMANDS[command]()

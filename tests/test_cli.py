@@ -70,8 +70,15 @@ def test_multirun_sweep_writes_summary(tmp_path: Path):
         (["experiment=lord3dof", "data.mirror_hint=false"], "fix the 3-axis frame only up to a mirror image"),
         (["model.rank=3"], "model.rank is 3 but the data has 2 load axes"),
         (["model=least_squares"], "learns from a 'least_squares' recording, which this data does not have"),
+        (["experiment=fingertp"], "unknown experiment 'fingertp' (did you mean 'fingertip'?): choose one of"),
+        (["data.nosie_fraction=0.1"], "unknown config key 'data.nosie_fraction' (did you mean 'data.noise_fraction'?)"),
+        (["experiment=calibrate_csv"], "data.path must be given, e.g. data.path=<value>"),
+        (["experiment=calibrate_csv", "data.path=/no/such/file.csv", "data.magnitude=1"], "/no/such/file.csv does not exist"),
     ],
-    ids=["collinear", "coplanar", "too-few-samples", "no-mirror-bit", "wrong-rank", "no-known-loads"],
+    ids=[
+        "collinear", "coplanar", "too-few-samples", "no-mirror-bit", "wrong-rank", "no-known-loads",
+        "unknown-experiment", "misspelt-key", "missing-path", "no-such-file",
+    ],
 )
 def test_bad_input_one_line_exit_2(tmp_path: Path, overrides: list[str], message: str):
     result = sfmnet("train", f"hydra.run.dir={tmp_path / 'run'}", *overrides, *QUIET)
