@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import io
 from pathlib import Path
 
 import torch
@@ -11,7 +10,7 @@ import torch
 from sfmnet.calibration import Calibration
 from sfmnet.data.table_file import check_finite, read_table
 from sfmnet.errors import SfmnetError
-from sfmnet.io import write_text_atomic
+from sfmnet.io import write_csv_atomic
 
 OPTIONS = {"calibration", "input", "output", "overwrite"}
 
@@ -57,12 +56,11 @@ def apply_calibration(calibration_path: Path, input_path: Path, output_path: Pat
     with input_path.open(newline="") as stream:
         rows = [row for row in csv.reader(stream) if any(cell.strip() for cell in row)]
     header = rows[0]
-    buffer = io.StringIO()
-    writer = csv.writer(buffer)
-    writer.writerow([*header, *output_names(calibration.axes, header)])
-    for row, load in zip(rows[1:], loads):
-        writer.writerow([*row, *(f"{value:.9g}" for value in load)])
-    write_text_atomic(output_path, buffer.getvalue())
+    write_csv_atomic(
+        output_path,
+        [*header, *output_names(calibration.axes, header)],
+        ([*row, *(f"{value:.9g}" for value in load)] for row, load in zip(rows[1:], loads)),
+    )
     return len(loads)
 
 

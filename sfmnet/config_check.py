@@ -36,10 +36,15 @@ def check_overrides(overrides: list[str], config_dir: str) -> None:
     from hydra import compose, initialize_config_dir
 
     groups = {path.name: sorted(p.stem for p in path.glob("*.yaml")) for path in Path(config_dir).iterdir() if path.is_dir()}
-    selections, settings = [], []
+    selections: list[str] = []
+    settings: list[str] = []
+    given: set[str] = set()
     for item in overrides:
         key, sep, value = item.partition("=")
-        if not sep or key.startswith(("hydra.", "+", "~")):
+        if not sep:
+            continue
+        given.add(key.lstrip("+"))
+        if key.startswith(("hydra.", "+", "~")):
             continue
         if key in groups:
             if value not in groups[key]:
@@ -48,18 +53,16 @@ def check_overrides(overrides: list[str], config_dir: str) -> None:
                 )
             selections.append(item)
         else:
-            settings.append((key, item))
+            settings.append(key)
     with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
         config = compose(config_name="train", overrides=selections)
     keys = flat_keys(OmegaConf.to_container(config, resolve=False, throw_on_missing=False))
-    for key, _ in settings:
+    for key in settings:
         if key not in keys:
             raise SfmnetError(
                 f"unknown config key '{key}'{suggestion(key, keys)}: see python -m sfmnet train --help "
                 "(add a new key with +key=value)"
             )
-    with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
-        config = compose(config_name="train", overrides=[*selections, *(item for _, item in settings)])
-    missing = sorted(OmegaConf.missing_keys(config))
+    missing = sorted(key for key in OmegaConf.missing_keys(config) if key not in given)
     if missing:
         raise SfmnetError(f"{', '.join(missing)} must be given, e.g. {missing[0]}=<value>")

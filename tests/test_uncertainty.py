@@ -41,7 +41,7 @@ def test_error_bars_are_honest(channels: int):
         datamodule.setup()
         recording = datamodule.data.recordings["rotation"]
         model = refined(ShapeFromMotion(estimate_offset=True), recording)
-        bars = model.uncertainty(recording)
+        bars = model.uncertainty(recording, model.fitted_loads(recording))
         truth = datamodule.data.truth
         scores.append(((model.calibration_matrix() - truth.matrix) / bars.matrix_std).flatten())
         scores.append((model.physical_offset() - truth.offset) / bars.offset_std)
@@ -61,7 +61,7 @@ def test_error_bars_shrink_with_more_samples_except_the_frame():
         recording = datamodule.data.recordings["rotation"]
         model = ShapeFromMotion()
         model.initialise(recording)
-        bars[samples] = model.uncertainty(recording)
+        bars[samples] = model.uncertainty(recording, model.fitted_loads(recording))
     # 16 times the samples: a quarter of the offsets' standard errors ...
     offset_ratio = float(bars[800].offset_std.norm() / bars[50].offset_std.norm())
     assert offset_ratio == pytest.approx(0.25, rel=0.25)

@@ -36,10 +36,6 @@ class CalibrationRecording:
     def rank(self) -> int:
         return self.loads.shape[1]
 
-    @property
-    def channels(self) -> int:
-        return self.readings.shape[1]
-
 
 @dataclass(frozen=True)
 class EvaluationSweep:

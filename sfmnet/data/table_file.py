@@ -29,10 +29,6 @@ class Table:
     text: dict[str, list[str]]
     corrupt: frozenset[str] = frozenset()
 
-    @property
-    def rows(self) -> int:
-        return len(next(iter(self.columns.values()))) if self.columns else 0
-
     def require(self, names: list[str], role: str) -> None:
         """Raise a clear error naming each missing column and its closest match."""
         for name in names:

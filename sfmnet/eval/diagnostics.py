@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from sfmnet.data.recording import CalibrationRecording
@@ -13,9 +15,12 @@ WARN_COVERAGE = 0.5
 
 
 def calibration_diagnostics(
-    model: LinearCalibrator, recording: CalibrationRecording, channels: list[str]
+    model: LinearCalibrator, recording: CalibrationRecording, channels: list[str], residuals: torch.Tensor
 ) -> tuple[dict[str, float], list[str]]:
     """Diagnostic metrics of a fitted model and the warnings they call for.
+
+    Args:
+        residuals: ``f x p``, from :meth:`LinearCalibrator.fitted_residuals`.
 
     Returns:
         ``rank_gap`` (singular value n over n+1 of the readings), ``condition_number`` (of the
@@ -35,14 +40,14 @@ def calibration_diagnostics(
             )
     matrix_singular = torch.linalg.svdvals(model.calibration_matrix())
     metrics["condition_number"] = float(matrix_singular[0] / matrix_singular[-1])
-    coverage = getattr(model, "coverage", float("nan"))
-    if coverage == coverage:
+    coverage = model.coverage
+    if math.isfinite(coverage):
         metrics["coverage"] = coverage
         if coverage < WARN_COVERAGE:
             warnings.append(
                 f"coverage {coverage:.2f} (< {WARN_COVERAGE:g}; 1 is a full {'circle' if n == 2 else 'sphere'}): "
                 "the orientations leave part of the load space unvisited; turn the mass through more of it"
             )
-    residual = model.fitted_residuals(recording).pow(2).mean(dim=0).sqrt()
+    residual = residuals.pow(2).mean(dim=0).sqrt()
     metrics.update({f"residual_rms/{name}": float(value) for name, value in zip(channels, residual)})
     return metrics, warnings

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 
 from sfmnet.data.recording import CalibrationData
 from sfmnet.errors import SfmnetError
-from sfmnet.io import write_text_atomic
+from sfmnet.io import write_csv_atomic
 
 # Paper, Table 1: load (g) -> (mean, error %, std dev) for least squares and shape from motion.
 PAPER_TABLE1 = {
@@ -28,12 +26,9 @@ def table1_rows(metrics: dict[str, dict[str, float]], loads: list[float]) -> lis
 
 
 def write_table1(path: Path, rows: list[dict[str, float]]) -> None:
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=COLUMNS)
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({k: f"{v:.4f}" if k != "load" else f"{v:g}" for k, v in row.items()})
-    write_text_atomic(path, buffer.getvalue())
+    write_csv_atomic(
+        path, COLUMNS, ([f"{row['load']:g}", *(f"{row[column]:.4f}" for column in COLUMNS[1:])] for row in rows)
+    )
 
 
 def format_beside_paper(rows: list[dict[str, float]]) -> str:

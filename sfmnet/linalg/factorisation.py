@@ -148,14 +148,17 @@ def positive_definite_or_raise(q: torch.Tensor) -> torch.Tensor:
     return q
 
 
-def metric_upgrade(factors: AffineFactors, gram: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Apply ``B`` with ``B B^T = Q``: ``M = M^ B``, ``S = B^-1 S^`` (eq. 10).
+def metric_shape(affine_shape: torch.Tensor, gram: torch.Tensor) -> torch.Tensor:
+    """``S = B^-1 S^`` with ``B`` the Cholesky factor of ``Q = B B^T`` (eq. 10; ``M = M^ B`` correspondingly).
+
+    Args:
+        affine_shape: ``S^``, ``n x p``.
+        gram: ``Q``, ``n x n``.
 
     Returns:
-        ``(M, S)``, right up to an orthogonal transform of the load frame.
+        ``S``, ``n x p``, right up to an orthogonal transform of the load frame.
     """
-    b = torch.linalg.cholesky(gram)
-    return factors.motion @ b, torch.linalg.solve_triangular(b, factors.shape, upper=False)
+    return torch.linalg.solve_triangular(torch.linalg.cholesky(gram), affine_shape, upper=False)
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ class LinearCalibrator(nn.Module, ABC):
         recording: the name of the recording this model learns from.
         estimate_offset: learn ``o`` (else the readings are taken as tared, ``o = 0``).
         frame_fixed: False while the load frame is arbitrary (no known loads).
+        coverage: see :func:`sfmnet.linalg.factorisation.motion_coverage`; NaN where it does not apply.
     """
 
     name: str
@@ -42,6 +43,7 @@ class LinearCalibrator(nn.Module, ABC):
         self.register_buffer("load_scale", None)
         self.singular_values: torch.Tensor | None = None
         self.frame_fixed = True
+        self.coverage = float("nan")
 
     @abstractmethod
     def initialise(self, recording: CalibrationRecording) -> None:
@@ -78,20 +80,24 @@ class LinearCalibrator(nn.Module, ABC):
         """The fitted loads of the rows whose load is unknown, ``f x n`` (none here)."""
         return recording.loads[:0]
 
-    def fitted_residuals(self, recording: CalibrationRecording) -> torch.Tensor:
-        """``z - m S - o`` per row (``f x p``), with each row's fitted load (known, or on the sphere)."""
-        known = recording.known
+    def fitted_loads(self, recording: CalibrationRecording) -> torch.Tensor:
+        """Each row's load, ``f x n``: the known one, else :meth:`unknown_loads`."""
         loads = recording.loads.clone()
-        loads[~known] = self.unknown_loads(recording)
+        loads[~recording.known] = self.unknown_loads(recording)
+        return loads
+
+    def fitted_residuals(self, recording: CalibrationRecording, loads: torch.Tensor) -> torch.Tensor:
+        """``z - m S - o`` per row (``f x p``) for the rows' ``loads`` (from :meth:`fitted_loads`)."""
         return recording.readings - loads @ self.physical_shape() - self.physical_offset()
 
-    def uncertainty(self, recording: CalibrationRecording) -> CalibrationUncertainty:
-        """Cramer-Rao standard errors of the calibration at the fitted solution (reading noise only)."""
-        residual = self.fitted_residuals(recording)
+    def uncertainty(self, recording: CalibrationRecording, loads: torch.Tensor) -> CalibrationUncertainty:
+        """Cramer-Rao standard errors at the fitted solution (reading noise only); ``loads`` from :meth:`fitted_loads`."""
+        residual = self.fitted_residuals(recording, loads)
+        known = recording.known
         return calibration_uncertainty(
             self.physical_shape(),
-            recording.loads[recording.known],
-            self.unknown_loads(recording),
+            loads[known],
+            loads[~known],
             self.estimate_offset,
             residual_sum_of_squares=float(residual.pow(2).sum()),
             observations=residual.numel(),

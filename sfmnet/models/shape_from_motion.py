@@ -11,8 +11,8 @@ from sfmnet.errors import SfmnetError
 from sfmnet.linalg.factorisation import (
     fit_ellipsoid,
     metric_gram,
+    metric_shape,
     metric_unknowns,
-    metric_upgrade,
     require_coverage,
     truncated_svd_factors,
 )
@@ -53,7 +53,6 @@ class ShapeFromMotion(LinearCalibrator):
         super().__init__(estimate_offset=estimate_offset)
         self.rank = rank
         self.metric_weight = metric_weight
-        self.coverage = float("nan")
 
     def initialise(self, recording: CalibrationRecording) -> None:
         self.rank = self.rank or recording.rank
@@ -80,9 +79,9 @@ class ShapeFromMotion(LinearCalibrator):
         if constrained and self.estimate_offset:
             ellipsoid = fit_ellipsoid(factors.motion, magnitude)
             offset = factors.mean + ellipsoid.centre @ factors.shape
-            shape = torch.linalg.solve_triangular(torch.linalg.cholesky(ellipsoid.gram), factors.shape, upper=False)
+            shape = metric_shape(factors.shape, ellipsoid.gram)
         elif constrained:
-            _, shape = metric_upgrade(factors, metric_gram(factors.motion, magnitude))
+            shape = metric_shape(factors.shape, metric_gram(factors.motion, magnitude))
         self.set_solution(shape, offset, recording.readings, load_scale=magnitude if constrained else 1.0)
         if constrained:
             self.coverage = require_coverage(self.motion_of(readings), magnitude)

@@ -18,6 +18,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+
 import lightning as L
 import torch
 from hydra.utils import instantiate
@@ -88,8 +89,11 @@ def fit_method(
 
     data = datamodule.data
     recording = data.recordings[model.recording]
-    uncertainty = model.uncertainty(recording)
-    diagnostics, warnings = calibration_diagnostics(model, recording, data.channels)
+    loads = model.fitted_loads(recording)
+    uncertainty = model.uncertainty(recording, loads)
+    diagnostics, warnings = calibration_diagnostics(
+        model, recording, data.channels, model.fitted_residuals(recording, loads)
+    )
     calibration = Calibration(
         matrix=model.calibration_matrix(),
         offset=model.physical_offset(),

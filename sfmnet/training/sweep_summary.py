@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 from typing import Any
@@ -11,7 +9,7 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from sfmnet.io import write_text_atomic
+from sfmnet.io import write_csv_atomic
 
 
 def sweep_rows(sweep_dir: Path) -> list[dict[str, Any]]:
@@ -32,11 +30,7 @@ def write_sweep_csv(path: Path, rows: list[dict[str, Any]]) -> None:
     columns: list[str] = []
     for row in rows:
         columns.extend(key for key in row if key not in columns)
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=columns)
-    writer.writeheader()
-    writer.writerows(rows)
-    write_text_atomic(path, buffer.getvalue())
+    write_csv_atomic(path, columns, ([row.get(column, "") for column in columns] for row in rows))
 
 
 class SweepSummary(Callback):
