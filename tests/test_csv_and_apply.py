@@ -46,7 +46,7 @@ def test_csv_contract_end_to_end(tmp_path: Path):
     rows = list(csv.DictReader(output.open()))
     assert list(rows[0])[-3:] == ["fx_calibrated", "fy_calibrated", "fz_calibrated"]
     assert rows[0]["time"] == "0.00"  # the input's columns are kept as they were
-    magnitudes = [math.dist([0, 0, 0], [float(r[f"{a}_calibrated"]) for a in "fx fy fz".split()]) for r in rows]
+    magnitudes = [math.dist([0, 0, 0], [float(r[f"{a}_calibrated"]) for a in ["fx", "fy", "fz"]]) for r in rows]
     assert abs(np.mean(magnitudes) / 9.81 - 1) < 0.005
 
 

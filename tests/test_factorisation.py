@@ -8,7 +8,12 @@ import torch
 from sfmnet.calibration import calibration_matrix
 from sfmnet.data.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
 from sfmnet.errors import SfmnetError
-from sfmnet.linalg.factorisation import metric_gram, quadratic_design, symmetric_from_upper, truncated_svd_factors
+from sfmnet.linalg.factorisation import (
+    metric_gram,
+    quadratic_design,
+    symmetric_from_upper,
+    truncated_svd_factors,
+)
 from sfmnet.linalg.frame import MirrorHint, frame_rotation
 from sfmnet.linalg.least_squares import least_squares_shape
 from sfmnet.models.least_squares import LeastSquaresCalibration

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import pytest
 import torch
-
 from hydra.utils import instantiate
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -26,11 +25,16 @@ NOISE_FREE = ["data.noise_fraction=0.0", "data.errors.angle_error_deg=0.0"]
         ["experiment=fingertip", "data.known_loads=1"],
         ["experiment=lord3dof", "data.known_loads=3"],
         ["experiment=lord3dof", "data.offset_scale=0.5", "model.estimate_offset=true"],
+        ["experiment=lord3dof", "data.offset_scale=0.5", "model.refinement=penalty"],
+        ["experiment=fingertip", "data.known_loads=1", "model.refinement=penalty"],
     ],
-    ids=["2d-two-loads", "2d-one-load-and-hint", "3d-three-loads", "3d-offsets-two-loads-and-hint"],
+    ids=[
+        "2d-two-loads", "2d-one-load-and-hint", "3d-three-loads", "3d-offsets-two-loads-and-hint",
+        "3d-offsets-penalty", "2d-hint-penalty",
+    ],
 )
-def test_gradient_training_through_trainer_converges_to_closed_form(overrides):
-    """Knock the closed-form solution 10 % off, then let the trainer's gradient steps bring it back."""
+def test_training_through_trainer_converges_to_closed_form(overrides):
+    """Knock the closed-form solution 10 % off, then let the trainer's refinement steps bring it back."""
     # Noise-free, the loss falls to zero: the default tolerances (set for noisy data, where the
     # loss levels off at the noise) would stop at a 1e-6 error, so tighten them.
     tight = ["optimizer.tolerance_grad=1e-14", "optimizer.tolerance_change=1e-20"]

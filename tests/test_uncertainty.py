@@ -9,14 +9,21 @@ from sfmnet.data.simulated_sensor import ForceSensor3DataModule
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 
 
-def refined(model: ShapeFromMotion, recording) -> ShapeFromMotion:
-    """The closed form, then the same L-BFGS refinement the trainer runs (conf/optimizer/lbfgs.yaml)."""
-    model.initialise(recording)
+def refined(
+    model: ShapeFromMotion, recording, initialise: bool = True, epochs: int = 10, tolerance_change: float = 1e-14
+) -> ShapeFromMotion:
+    """The closed form, then the refinement the trainer runs: the model's alternation, or L-BFGS (conf/optimizer/lbfgs.yaml)."""
+    if initialise:
+        model.initialise(recording)
+    batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
+    if model.alternating:
+        for _ in range(epochs):
+            model.alternate(batch)
+        return model
     optimizer = torch.optim.LBFGS(
         [p for p in model.parameters() if p.requires_grad],
-        max_iter=50, history_size=50, line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=1e-14,
+        max_iter=50, history_size=50, line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=tolerance_change,
     )
-    batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
 
     def closure() -> torch.Tensor:
         optimizer.zero_grad()
@@ -24,7 +31,7 @@ def refined(model: ShapeFromMotion, recording) -> ShapeFromMotion:
         loss.backward()
         return loss
 
-    for _ in range(5):
+    for _ in range(epochs):
         optimizer.step(closure)
     return model
 

@@ -45,3 +45,14 @@ class CalibrationDataModule(L.LightningDataModule, ABC):
                 dataset, batch_size=self.batch_size or rows, shuffle=self.batch_size is not None
             )
         return loaders
+
+
+class FixedCalibrationDataModule(CalibrationDataModule):
+    """Serves data already in memory (e.g. one fold of a cross-validation)."""
+
+    def __init__(self, data: CalibrationData, batch_size: int | None = None) -> None:
+        super().__init__(batch_size=batch_size)
+        self.fixed = data
+
+    def build(self) -> CalibrationData:
+        return self.fixed

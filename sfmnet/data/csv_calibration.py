@@ -9,11 +9,10 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
-from sfmnet.data.table_file import check_finite, read_table
+from sfmnet.data.table_file import Table, check_finite, read_table
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
-
-STANDARD_GRAVITY = 9.80665  # m/s^2
+from sfmnet.linalg.wrench import STANDARD_GRAVITY, wrench_map
 
 
 class CsvCalibrationDataModule(CalibrationDataModule):
@@ -21,7 +20,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
 
     One row per sample. The load columns are filled only on rows whose load is known (the
     few reference loads) and empty elsewhere; every row is taken with the same load
-    magnitude, the calibration mass.
+    magnitude, the calibration mass. For a six-axis sensor (NOTES 6) a configuration column
+    says which mass configuration each row holds, each with its mass and centre of mass.
 
     Args:
         path: the file.
@@ -36,6 +36,12 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         known_load_tolerance: relative disagreement allowed between a known load's magnitude
             and ``magnitude`` (the known loads are the same mass, so they must agree).
         load_unit: for reports, e.g. ``N``.
+        configuration_column: six axes: the column naming each row's mass configuration.
+        configurations: six axes: ``{<id>: {mass: <kg>, centre_of_mass: [x, y, z] (m, sensor frame)}}``
+            for every id in the configuration column; then ``magnitude``/``mass`` are not used.
+        group_column: a column grouping rows (e.g. the pose they were recorded in) for
+            leave-one-group-out evaluation.
+        gravity: m/s^2, for ``mass`` and ``configurations``.
     """
 
     def __init__(
@@ -50,6 +56,10 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         mirror_hint: dict | None = None,
         known_load_tolerance: float = 0.02,
         load_unit: str = "N",
+        configuration_column: str | None = None,
+        configurations: dict | None = None,
+        group_column: str | None = None,
+        gravity: float = STANDARD_GRAVITY,
         batch_size: int | None = None,
     ) -> None:
         super().__init__(batch_size=batch_size)
@@ -63,11 +73,15 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         self.mirror_hint = mirror_hint
         self.known_load_tolerance = known_load_tolerance
         self.load_unit = load_unit
+        self.configuration_column = configuration_column
+        self.configurations = configurations
+        self.group_column = group_column
+        self.gravity = gravity
 
     def load_magnitude(self) -> float:
         if (self.magnitude is None) == (self.mass is None):
             raise SfmnetError("give the calibration load as exactly one of data.magnitude (load units) or data.mass (kg)")
-        value = self.magnitude if self.magnitude is not None else self.mass * STANDARD_GRAVITY
+        value = self.magnitude if self.magnitude is not None else self.mass * self.gravity
         if not value > 0:
             raise SfmnetError(f"the load magnitude must be positive, got {value}")
         return float(value)
@@ -75,7 +89,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
     def build(self) -> CalibrationData:
         table = read_table(self.path, self.columns)
         table.require(self.load_columns, "load")
-        excluded = {*self.load_columns, *([self.time_column] if self.time_column else [])}
+        excluded = {*self.load_columns, *(c for c in (self.time_column, self.configuration_column, self.group_column) if c)}
         # Numeric columns with a few bad cells stay in, so their cells are reported, not skipped.
         candidates = [name for name in [*table.columns, *table.text] if name in table.columns or name in table.corrupt]
         channels = self.channel_columns or [name for name in candidates if name not in excluded]
@@ -100,29 +114,74 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 f"{self.path} line {int(np.argmax(partial)) + 2} gives only some of {', '.join(self.load_columns)}: "
                 "fill every load column on a known row, or none"
             )
-        magnitude = self.load_magnitude()
-        self.check_known_magnitudes(loads, magnitude)
-        recording = CalibrationRecording(
-            readings=torch.from_numpy(readings),
-            loads=torch.from_numpy(loads),
-            magnitude=magnitude,
-            mirror_hint=self.parse_mirror_hint(loads),
-        )
+        groups = None
+        if self.group_column:
+            groups = torch.from_numpy(np.unique(table.numeric([self.group_column], "group")[:, 0], return_inverse=True)[1])
+        if self.configuration_column:
+            configuration, maps = self.parse_configurations(table)
+            self.check_known_magnitudes(loads[:, :3], (maps[:, 0, 0].numpy())[configuration.numpy()])
+            recording = CalibrationRecording(
+                readings=torch.from_numpy(readings),
+                loads=torch.from_numpy(loads),
+                configuration=configuration,
+                direction_maps=maps,
+                groups=groups,
+            )
+        else:
+            magnitude = self.load_magnitude()
+            self.check_known_magnitudes(loads, np.full(len(loads), magnitude))
+            recording = CalibrationRecording(
+                readings=torch.from_numpy(readings),
+                loads=torch.from_numpy(loads),
+                magnitude=magnitude,
+                mirror_hint=self.parse_mirror_hint(loads),
+                groups=groups,
+            )
         return CalibrationData(
             recordings={"rotation": recording}, channels=channels, axes=self.load_columns, load_unit=self.load_unit
         )
 
-    def check_known_magnitudes(self, loads: np.ndarray, magnitude: float) -> None:
-        known = ~np.isnan(loads).any(axis=1)
-        norms = np.linalg.norm(loads[known], axis=1)
-        off = np.abs(norms / magnitude - 1) > self.known_load_tolerance
+    def check_known_magnitudes(self, forces: np.ndarray, magnitudes: np.ndarray) -> None:
+        """Known (force) loads must have their row's mass's magnitude: they are that mass in a known pose."""
+        known = ~np.isnan(forces).any(axis=1)
+        norms = np.linalg.norm(forces[known], axis=1)
+        off = np.abs(norms / magnitudes[known] - 1) > self.known_load_tolerance
         if off.any():
-            line = int(np.nonzero(known)[0][np.argmax(off)]) + 2
+            first = int(np.argmax(off))
+            line = int(np.nonzero(known)[0][first]) + 2
+            source = "its configuration's mass gives" if self.configuration_column else "data.magnitude is"
             raise SfmnetError(
-                f"the known load on line {line} of {self.path} has magnitude {norms[np.argmax(off)]:.6g} but "
-                f"data.magnitude is {magnitude:.6g} ({100 * self.known_load_tolerance:g} % allowed): the known "
-                "loads must be the calibration mass; check the load columns, units and data.magnitude"
+                f"the known load on line {line} of {self.path} has magnitude {norms[first]:.6g} but "
+                f"{source} {magnitudes[known][first]:.6g} ({100 * self.known_load_tolerance:g} % allowed): "
+                "the known loads must be the calibration mass; check the load columns, units and masses"
             )
+
+    def parse_configurations(self, table: Table) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each row's configuration index (``f``) and the ``C x 3 x 6`` wrench maps (NOTES 6)."""
+        if len(self.load_columns) != 6:
+            raise SfmnetError(
+                f"data.configuration_column is for six-axis sensors: give six load_columns (force, then torque), "
+                f"not {len(self.load_columns)}"
+            )
+        ids = table.numeric([self.configuration_column], "configuration")[:, 0]
+        given = {float(key): value for key, value in (self.configurations or {}).items()}
+        missing = sorted(set(np.unique(ids)) - set(given))
+        if missing:
+            raise SfmnetError(
+                f"configuration {missing[0]:g} of column '{self.configuration_column}' has no entry in "
+                "data.configurations: give {<id>: {mass: <kg>, centre_of_mass: [x, y, z]}} for every configuration"
+            )
+        used = sorted(set(np.unique(ids)))
+        maps = []
+        for key in used:
+            entry = dict(given[key])
+            if set(entry) != {"mass", "centre_of_mass"} or len(entry["centre_of_mass"]) != 3:
+                raise SfmnetError(
+                    f"data.configurations[{key:g}] needs exactly mass (kg) and centre_of_mass ([x, y, z], m)"
+                )
+            maps.append(wrench_map(float(entry["mass"]), torch.tensor(entry["centre_of_mass"], dtype=torch.float64), self.gravity))
+        configuration = torch.from_numpy(np.searchsorted(np.array(used), ids))
+        return configuration, torch.stack(maps)
 
     def parse_mirror_hint(self, loads: np.ndarray) -> MirrorHint | None:
         if self.mirror_hint is None:

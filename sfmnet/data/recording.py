@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 
@@ -13,12 +13,21 @@ from sfmnet.linalg.frame import MirrorHint
 class CalibrationRecording:
     """Raw readings, with the load of each row where it is known.
 
+    A row whose load is unknown carries a known mass in an unknown orientation: its load is
+    ``u D_c`` with ``u`` an unknown unit direction (``d``) and ``D_c`` (``d x n``) the
+    direction map of its mass configuration ``c``. For force sensors ``D = F I`` (one
+    configuration, the constant magnitude ``F``); for a six-axis sensor ``D_c = m_c g [I, [r_c]x^T]``
+    turns the gravity direction into the wrench of mass ``m_c`` at centre of mass ``r_c`` (NOTES 6).
+
     Attributes:
         readings: ``f x p`` raw units.
         loads: ``f x n`` load units; NaN on the rows whose load is unknown.
         magnitude: ``F``, the constant load magnitude of the unknown rows (load units).
         mirror_hint: the bit that picks the frame's mirror side when only ``n - 1`` loads are known.
-        true_loads: ``f x n``, the loads really applied, where known (simulations).
+        true_loads: ``f x n``, the loads really applied, where known (simulations, reference data).
+        configuration: ``f`` (long), each row's mass configuration; None: all one.
+        direction_maps: ``C x d x n``, ``D_c`` per configuration; None: ``F I``.
+        groups: ``f`` (long), e.g. the pose each row was recorded in, for leave-one-group-out.
     """
 
     readings: torch.Tensor
@@ -26,6 +35,9 @@ class CalibrationRecording:
     magnitude: float = float("nan")
     mirror_hint: MirrorHint | None = None
     true_loads: torch.Tensor | None = None
+    configuration: torch.Tensor | None = None
+    direction_maps: torch.Tensor | None = None
+    groups: torch.Tensor | None = None
 
     @property
     def known(self) -> torch.Tensor:
@@ -35,6 +47,37 @@ class CalibrationRecording:
     @property
     def rank(self) -> int:
         return self.loads.shape[1]
+
+    @property
+    def maps(self) -> torch.Tensor:
+        """``C x d x n``: :attr:`direction_maps`, or ``F I`` for one constant-magnitude mass."""
+        if self.direction_maps is not None:
+            return self.direction_maps
+        return self.magnitude * torch.eye(self.rank, dtype=self.readings.dtype)[None]
+
+    @property
+    def row_configuration(self) -> torch.Tensor:
+        """``f`` (long): :attr:`configuration`, or zeros."""
+        if self.configuration is not None:
+            return self.configuration
+        return torch.zeros(len(self.readings), dtype=torch.long)
+
+    def without(self, rows: torch.Tensor) -> CalibrationRecording:
+        """This recording with the boolean ``f`` mask ``rows`` removed (the mirror hint dropped)."""
+        keep = ~rows
+
+        def take(value: torch.Tensor | None) -> torch.Tensor | None:
+            return None if value is None else value[keep]
+
+        return replace(
+            self,
+            readings=self.readings[keep],
+            loads=self.loads[keep],
+            true_loads=take(self.true_loads),
+            configuration=take(self.configuration),
+            groups=take(self.groups),
+            mirror_hint=None,
+        )
 
 
 @dataclass(frozen=True)
@@ -68,6 +111,7 @@ class CalibrationData:
         recordings: by name: ``"rotation"`` (unknown orientations plus a few known loads) and,
             where available, ``"least_squares"`` (every load known).
         evaluations: test sweeps for the paper's accuracy and precision protocol.
+        test: held-out readings with their true loads (``true_loads``), where available.
         channels: the ``p`` raw channel names.
         axes: the ``n`` load axis names.
         load_unit: e.g. ``"gf"`` or ``"N"``.
@@ -79,4 +123,14 @@ class CalibrationData:
     axes: list[str]
     load_unit: str
     evaluations: list[EvaluationSweep] = field(default_factory=list)
+    test: CalibrationRecording | None = None
     truth: SensorTruth | None = None
+
+    def without_group(self, group: int) -> CalibrationData:
+        """The data with every recording's rows of ``group`` removed (for leave-one-group-out)."""
+        recordings = {}
+        for name, recording in self.recordings.items():
+            if recording.groups is None:
+                raise ValueError(f"recording {name} has no groups")
+            recordings[name] = recording.without(recording.groups == group)
+        return replace(self, recordings=recordings, evaluations=[], test=None)

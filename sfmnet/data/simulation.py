@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import torch
 
-from sfmnet.data.recording import CalibrationRecording, EvaluationSweep, SensorTruth
 from sfmnet.calibration import calibration_matrix
+from sfmnet.data.recording import CalibrationRecording, EvaluationSweep, SensorTruth
 from sfmnet.linalg.frame import MirrorHint
 
 DTYPE = torch.float64

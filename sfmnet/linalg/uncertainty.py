@@ -2,10 +2,12 @@
 
 Model, with white reading noise of variance ``sigma^2``::
 
-    z_j = m_j S + o + e_j,    m_j known (known-load rows) or m_j = F u_j, |u_j| = 1 (unknown rows)
+    z_j = m_j S + o + e_j,    m_j known (known-load rows) or m_j = u_j D_j, |u_j| = 1 (unknown rows)
 
-Parameters: the shape ``S`` (``n x p``), the offsets ``o`` (``p``, when estimated) and, for
-each unknown row, its direction on the circle or sphere (``n - 1`` tangent coordinates).
+with ``D_j = F I`` for one constant-magnitude mass and the configuration's direction map
+for six axes (NOTES 6). Parameters: the shape ``S`` (``n x p``), the offsets ``o`` (``p``,
+when estimated) and, for each unknown row, its direction ``u_j`` on the circle or sphere
+(``d - 1`` tangent coordinates).
 The per-row directions are eliminated by a Schur complement, leaving the information of
 ``(S, o)``. Without known loads the frame's rotation is not identifiable: the
 pseudo-inverse then removes that gauge, as in the planning measurements of NOTES 5.
@@ -53,14 +55,19 @@ def global_jacobian(motion: torch.Tensor, channels: int, estimate_offset: bool) 
 
 
 def shape_information(
-    shape: torch.Tensor, known_motion: torch.Tensor, unknown_motion: torch.Tensor, estimate_offset: bool
+    shape: torch.Tensor,
+    known_motion: torch.Tensor,
+    unknown_directions: torch.Tensor,
+    unknown_maps: torch.Tensor,
+    estimate_offset: bool,
 ) -> torch.Tensor:
     """Fisher information of ``(vec S, o)`` per unit noise variance, the unknown directions marginalised.
 
     Args:
         shape: ``S``, ``n x p``.
         known_motion: ``k x n`` loads of the known-load rows.
-        unknown_motion: ``f x n`` fitted loads of the constant-magnitude rows (on the sphere).
+        unknown_directions: ``f x d`` fitted unit directions ``u_j`` of the unknown-load rows.
+        unknown_maps: ``f x d x n``, their maps ``D_j`` (load units per unit direction).
         estimate_offset: include the offsets.
 
     Returns:
@@ -68,11 +75,12 @@ def shape_information(
     """
     p = shape.shape[1]
     known = global_jacobian(known_motion, p, estimate_offset)
-    unknown = global_jacobian(unknown_motion, p, estimate_offset)
+    unknown = global_jacobian(torch.einsum("jd,jdn->jn", unknown_directions, unknown_maps), p, estimate_offset)
     information = torch.einsum("jpa,jpb->ab", known, known) + torch.einsum("jpa,jpb->ab", unknown, unknown)
-    if len(unknown_motion) and shape.shape[0] > 1:
-        # d z_j / d delta_j = T_j^T S, the direction's tangent coordinates.
-        direction = torch.einsum("jnd,np->jpd", tangent_bases(unknown_motion), shape)
+    if len(unknown_directions) and unknown_directions.shape[1] > 1:
+        # d z_j / d delta_j = T_j^T D_j S, the direction's tangent coordinates.
+        tangent_maps = torch.einsum("jde,jdn->jen", tangent_bases(unknown_directions), unknown_maps)
+        direction = torch.einsum("jen,np->jpe", tangent_maps, shape)
         cross = torch.einsum("jpa,jpd->jad", unknown, direction)
         local = torch.einsum("jpd,jpe->jde", direction, direction)
         information = information - torch.einsum("jad,jde,jbe->ab", cross, torch.linalg.inv(local), cross)
@@ -82,7 +90,8 @@ def shape_information(
 def calibration_uncertainty(
     shape: torch.Tensor,
     known_motion: torch.Tensor,
-    unknown_motion: torch.Tensor,
+    unknown_directions: torch.Tensor,
+    unknown_maps: torch.Tensor,
     estimate_offset: bool,
     residual_sum_of_squares: float,
     observations: int,
@@ -93,8 +102,8 @@ def calibration_uncertainty(
     the bound on ``S`` carried through the Jacobian of ``pinv(S)^T``.
     """
     n, p = shape.shape
-    information = shape_information(shape, known_motion, unknown_motion, estimate_offset)
-    parameters = information.shape[0] + len(unknown_motion) * (n - 1)
+    information = shape_information(shape, known_motion, unknown_directions, unknown_maps, estimate_offset)
+    parameters = information.shape[0] + len(unknown_directions) * (unknown_directions.shape[1] - 1)
     noise_var = residual_sum_of_squares / max(observations - parameters, 1)
     covariance = noise_var * torch.linalg.pinv(information, hermitian=True)
     shape_cov = covariance[: n * p, : n * p]

@@ -31,7 +31,8 @@ class LeastSquaresCalibration(LinearCalibrator):
             )
         shape, offset = least_squares_shape(recording.loads, recording.readings, self.estimate_offset)
         self.singular_values = torch.linalg.svdvals(recording.readings - offset)
-        self.set_solution(shape, offset, recording.readings, load_scale=float(recording.loads.norm(dim=1).max()))
+        # One scale per axis: forces and torques differ by orders of magnitude.
+        self.set_solution(shape, offset, recording.readings, load_scale=recording.loads.pow(2).mean(dim=0).sqrt())
 
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         _, readings, loads = batch

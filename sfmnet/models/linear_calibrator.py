@@ -18,7 +18,8 @@ class LinearCalibrator(nn.Module, ABC):
     """``Z = M S + 1 o^T``; the calibration is ``load = pinv(S)^T (z - o)``.
 
     Parameters live in dimensionless units, readings divided by ``reading_scale`` (RMS norm
-    of the centred readings) and loads by ``load_scale`` (the load magnitude), so every
+    of the centred readings) and loads by ``load_scale`` (the load magnitude, or one scale
+    per load axis where forces and torques mix), so every
     parameter is of order one: a gradient optimiser then sees a well-conditioned problem
     whatever the sensor's units. They are created by :meth:`initialise`, once the data's
     size is known.
@@ -53,16 +54,18 @@ class LinearCalibrator(nn.Module, ABC):
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Loss terms of one batch ``(index, readings, loads)``; key ``"loss"`` is minimised."""
 
-    def set_solution(self, shape: torch.Tensor, offset: torch.Tensor, readings: torch.Tensor, load_scale: float) -> None:
-        """Store a solution given in physical units (``S``: ``n x p``, ``o``: ``p``)."""
+    def set_solution(
+        self, shape: torch.Tensor, offset: torch.Tensor, readings: torch.Tensor, load_scale: float | torch.Tensor
+    ) -> None:
+        """Store a solution given in physical units (``S``: ``n x p``, ``o``: ``p``; ``load_scale`` scalar or ``n``)."""
         self.reading_scale = (readings - readings.mean(dim=0)).pow(2).sum(dim=1).mean().sqrt()
-        self.load_scale = torch.tensor(float(load_scale), dtype=readings.dtype)
-        self.shape = dense_parameter(shape * self.load_scale / self.reading_scale)
+        self.load_scale = torch.as_tensor(load_scale, dtype=readings.dtype)
+        self.shape = dense_parameter(shape * self.load_scale.reshape(-1, 1) / self.reading_scale)
         self.offset = dense_parameter(offset / self.reading_scale, requires_grad=self.estimate_offset)
 
     def physical_shape(self) -> torch.Tensor:
         """``S`` in raw units per load unit, ``n x p``."""
-        return self.shape.detach() * self.reading_scale / self.load_scale
+        return self.shape.detach() * self.reading_scale / self.load_scale.reshape(-1, 1)
 
     def physical_offset(self) -> torch.Tensor:
         """``o`` in raw units, ``p``."""
@@ -76,9 +79,19 @@ class LinearCalibrator(nn.Module, ABC):
         """The least-squares loads of readings under the current shape, ``f x n`` load units."""
         return (readings - self.physical_offset()) @ self.calibration_matrix().T
 
+    def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
+        """Fitted unit directions ``u`` (``f' x d``) of the unknown-load rows and their maps ``D`` (``f' x d x n``).
+
+        An unknown row's load is ``u D``; rows whose load is free (an unconstrained model) have
+        ``u`` the load itself and ``D = I``. None here.
+        """
+        n = recording.rank
+        return recording.loads[:0], recording.loads.new_zeros(0, n, n)
+
     def unknown_loads(self, recording: CalibrationRecording) -> torch.Tensor:
-        """The fitted loads of the rows whose load is unknown, ``f x n`` (none here)."""
-        return recording.loads[:0]
+        """The fitted loads of the rows whose load is unknown, ``f' x n``."""
+        directions, maps = self.unknown_directions(recording)
+        return torch.einsum("bd,bdn->bn", directions, maps)
 
     def fitted_loads(self, recording: CalibrationRecording) -> torch.Tensor:
         """Each row's load, ``f x n``: the known one, else :meth:`unknown_loads`."""
@@ -93,11 +106,12 @@ class LinearCalibrator(nn.Module, ABC):
     def uncertainty(self, recording: CalibrationRecording, loads: torch.Tensor) -> CalibrationUncertainty:
         """Cramer-Rao standard errors at the fitted solution (reading noise only); ``loads`` from :meth:`fitted_loads`."""
         residual = self.fitted_residuals(recording, loads)
-        known = recording.known
+        directions, maps = self.unknown_directions(recording)
         return calibration_uncertainty(
             self.physical_shape(),
-            loads[known],
-            loads[~known],
+            loads[recording.known],
+            directions,
+            maps,
             self.estimate_offset,
             residual_sum_of_squares=float(residual.pow(2).sum()),
             observations=residual.numel(),

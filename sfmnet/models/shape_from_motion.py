@@ -17,9 +17,12 @@ from sfmnet.linalg.factorisation import (
     truncated_svd_factors,
 )
 from sfmnet.linalg.frame import frame_rotation
+from sfmnet.linalg.least_squares import least_squares_shape
 from sfmnet.linalg.motion import constrained_motion
 from sfmnet.models.linear_calibrator import Batch, LinearCalibrator
 from sfmnet.models.losses import metric_constraint_loss, reconstruction_loss
+
+REFINEMENTS = ("alternation", "penalty")
 
 
 class ShapeFromMotion(LinearCalibrator):
@@ -27,32 +30,70 @@ class ShapeFromMotion(LinearCalibrator):
 
     Loss (NOTES 5), readings in units of their RMS norm and loads in units of ``F``::
 
-        L = (1/f) [ sum_j |z_j - m_j S - o|^2                            unknown-load rows
-                    + metric_weight * sum_j ((|m_j|^2 - 1) / 2)^2     unknown-load rows
+        L = (1/f) [ sum_j |z_j - u_j D_c S - o|^2                        unknown-load rows
+                    + metric_weight * sum_j ((|u_j|^2 - 1) / 2)^2     unknown-load rows
                     + sum_k |z_k - f_k S - o|^2 ]                      known-load rows
 
-    Each unknown row's ``m_j`` is the minimiser of its own terms given ``S`` and ``o``
-    (:func:`constrained_motion`, variable projection), so the trainer's optimiser works on
-    ``S`` and ``o`` alone: a small, well-conditioned problem. Known loads are used as their
-    rows' motion, their maximum-likelihood use, which also holds the frame during training.
+    An unknown row's load is ``m_j = u_j D_c``: its unit direction ``u_j`` through the direction
+    map of its mass configuration (:class:`CalibrationRecording`; ``D = F I`` for a force
+    sensor, so ``m_j = F u_j``; the gravity direction to the wrench for six axes, NOTES 6).
+    Each ``u_j`` is the minimiser of its own terms given ``S`` and ``o`` (:func:`constrained_motion`,
+    variable projection), so the trainer's optimiser works on ``S`` and ``o`` alone: a small,
+    well-conditioned problem. Known loads are used as their rows' motion, their
+    maximum-likelihood use, which also holds the frame during training.
     ``metric_weight = 0`` is the unconstrained affine factorisation (truncated SVD, or PCA
     when centred); large weights approach the hard constraint of maximum likelihood.
 
-    The closed form (paper eqs. 7-11, NOTES 2-4) is the first step of fitting.
+    The first step of fitting is the closed form (paper eqs. 7-11, NOTES 2-4) for one mass;
+    with several mass configurations (six axes) it is least squares on the known loads,
+    which the unknown orientations then refine.
+
+    Refinement, in the trainer's steps:
+
+    - ``"alternation"`` (default): NOTES 5's alternation, ``u_j <- normalize(z_j pinv(D S))``
+      then ``[S; o] <- lstsq([M 1], Z)`` (:meth:`alternate`), the motion always exactly on
+      the constraint. At low SNR it stays far closer to the Cramer-Rao bound than the exact
+      penalised minimum, whose per-sample directions are incidental parameters that bias
+      ``S`` (README, "Error against the Cramer-Rao bound").
+    - ``"penalty"``: the trainer's optimiser on the loss above with each ``u_j`` its exact argmin.
 
     Args:
         rank: ``n``, the number of load axes (2, 3, 6, ...); None takes it from the data.
         metric_weight: weight of the metric-constraint loss (0: unconstrained).
         estimate_offset: learn channel offsets (ellipsoid closed form, NOTES 4); else tared readings.
+        refinement: ``"alternation"`` or ``"penalty"`` (see above).
+        alternation_steps: alternation rounds per training step (full batches only).
     """
 
     name = "shape_from_motion"
     recording = "rotation"
 
-    def __init__(self, rank: int | None = None, metric_weight: float = 1000.0, estimate_offset: bool = True) -> None:
+    def __init__(
+        self,
+        rank: int | None = None,
+        metric_weight: float = 1000.0,
+        estimate_offset: bool = True,
+        refinement: str = "alternation",
+        alternation_steps: int = 50,
+    ) -> None:
         super().__init__(estimate_offset=estimate_offset)
+        if refinement not in REFINEMENTS:
+            raise SfmnetError(f"model.refinement is '{refinement}': use one of {', '.join(REFINEMENTS)}")
         self.rank = rank
         self.metric_weight = metric_weight
+        self.refinement = refinement
+        self.alternation_steps = alternation_steps
+        self.register_buffer("direction_maps", None)
+        self.register_buffer("row_configuration", None)
+
+    @property
+    def constrained(self) -> bool:
+        return self.metric_weight > 0
+
+    @property
+    def alternating(self) -> bool:
+        """Refined by :meth:`alternate` in the trainer's steps rather than by the optimiser."""
+        return self.refinement == "alternation"
 
     def initialise(self, recording: CalibrationRecording) -> None:
         self.rank = self.rank or recording.rank
@@ -60,13 +101,26 @@ class ShapeFromMotion(LinearCalibrator):
             raise SfmnetError(
                 f"model.rank is {self.rank} but the data has {recording.rank} load axes: set model.rank={recording.rank}"
             )
-        magnitude = recording.magnitude
-        constrained = self.metric_weight > 0
-        if constrained and not math.isfinite(magnitude):
+        if self.constrained and recording.direction_maps is None and not math.isfinite(recording.magnitude):
             raise SfmnetError("the metric constraint needs the load magnitude: set data.magnitude (load units)")
+        if recording.direction_maps is not None and self.constrained:
+            self.start_from_known_loads(recording)
+        else:
+            self.start_from_closed_form(recording)
+        if self.constrained:
+            self.coverage = require_coverage(
+                self.directions(recording.readings / self.reading_scale, recording.row_configuration, 0.0), 1.0
+            )
+        self.orient(recording)
+
+    def start_from_closed_form(self, recording: CalibrationRecording) -> None:
+        """The paper's closed form for one mass: truncated SVD, then the metric constraint (eqs. 7-11)."""
+        magnitude = recording.magnitude
         # Every row of a rotation recording is the same mass, known loads included.
         readings = recording.readings
-        needed = metric_unknowns(self.rank, self.estimate_offset) if constrained else self.rank + self.estimate_offset
+        needed = (
+            metric_unknowns(self.rank, self.estimate_offset) if self.constrained else self.rank + self.estimate_offset
+        )
         if len(readings) < needed:
             raise SfmnetError(
                 f"only {len(readings)} samples for {needed} unknowns of the metric constraint"
@@ -76,51 +130,138 @@ class ShapeFromMotion(LinearCalibrator):
         factors = truncated_svd_factors(readings, self.rank, centre=self.estimate_offset)
         self.singular_values = factors.singular_values
         shape, offset = factors.shape, factors.mean
-        if constrained and self.estimate_offset:
+        if self.constrained and self.estimate_offset:
             ellipsoid = fit_ellipsoid(factors.motion, magnitude)
             offset = factors.mean + ellipsoid.centre @ factors.shape
             shape = metric_shape(factors.shape, ellipsoid.gram)
-        elif constrained:
+        elif self.constrained:
             shape = metric_shape(factors.shape, metric_gram(factors.motion, magnitude))
-        self.set_solution(shape, offset, recording.readings, load_scale=magnitude if constrained else 1.0)
-        if constrained:
-            self.coverage = require_coverage(self.motion_of(readings), magnitude)
-        self.orient(recording)
+        self.set_solution(shape, offset, readings, load_scale=magnitude if self.constrained else 1.0)
+        self.set_direction_maps(recording)
 
-    def motion(self, readings: torch.Tensor, loads: torch.Tensor) -> torch.Tensor:
-        """Rows' motion in the model's units: the known load where given, else :func:`constrained_motion`.
+    def start_from_known_loads(self, recording: CalibrationRecording) -> None:
+        """Several mass configurations (six axes, NOTES 6): least squares on the known loads as the start."""
+        known = recording.known
+        needed = self.rank + self.estimate_offset
+        if int(known.sum()) < needed:
+            raise SfmnetError(
+                f"a {self.rank}-axis calibration from several mass configurations starts from its known loads, but "
+                f"only {int(known.sum())} rows have one: give at least {needed} known loads spanning every axis "
+                "(a few known poses in each of at least three configurations)"
+            )
+        shape, offset = least_squares_shape(recording.loads[known], recording.readings[known], self.estimate_offset)
+        readings = recording.readings
+        self.singular_values = torch.linalg.svdvals(readings - readings.mean(dim=0) if self.estimate_offset else readings)
+        maps = recording.maps
+        # One scale per axis (forces and torques differ by orders of magnitude), never zero.
+        scale = maps.norm(dim=1).pow(2).mean(dim=0).sqrt()
+        self.set_solution(shape, offset, recording.readings, load_scale=scale.clamp_min(1e-3 * float(scale.max())))
+        self.set_direction_maps(recording)
+
+    def set_direction_maps(self, recording: CalibrationRecording) -> None:
+        if self.constrained:
+            self.direction_maps = recording.maps / self.load_scale.reshape(1, 1, -1)
+            self.row_configuration = recording.row_configuration
+
+    def directions(self, readings: torch.Tensor, configuration: torch.Tensor, metric_weight: float) -> torch.Tensor:
+        """Unit-direction estimates ``u`` of unknown-load rows, ``b x d`` (:func:`constrained_motion` per configuration).
 
         Args:
-            readings: ``b x p`` divided by ``reading_scale``; loads: ``b x n`` divided by ``load_scale``, NaN if unknown.
+            readings: ``b x p`` divided by ``reading_scale``; configuration: ``b`` (long).
+            metric_weight: ``w`` (0: the least-squares directions, off the unit sphere).
         """
-        unknown = torch.isnan(loads).any(dim=1)
-        motion = loads.clone()
-        motion[unknown] = constrained_motion(
-            readings[unknown] - self.offset.detach(), self.shape.detach(), self.metric_weight
-        )
-        return motion
+        readings = readings - self.offset.detach()
+        directions = readings.new_zeros(len(readings), self.direction_maps.shape[1])
+        for c in configuration.unique().tolist():
+            rows = configuration == c
+            effective_shape = self.direction_maps[c] @ self.shape.detach()
+            directions[rows] = constrained_motion(readings[rows], effective_shape, metric_weight)
+        return directions
 
-    def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
-        _, readings, loads = batch
+    def row_directions(self, readings: torch.Tensor, configuration: torch.Tensor) -> torch.Tensor:
+        """Unknown rows' directions as the refinement uses them: normalised projections (alternation) or the penalty's argmin."""
+        if self.refinement == "alternation":
+            directions = self.directions(readings, configuration, 0.0)
+            return directions / directions.norm(dim=1, keepdim=True)
+        return self.directions(readings, configuration, self.metric_weight)
+
+    def batch_motion(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Dimensionless readings, motion (``b x n``), directions (``b x d``, zero on known rows) and the unknown-row mask."""
+        index, readings, loads = batch
         readings = readings / self.reading_scale
         loads = loads / self.load_scale
         unknown = torch.isnan(loads).any(dim=1)
-        motion = self.motion(readings, loads)
+        motion = loads.clone()
+        if not self.constrained:
+            motion[unknown] = constrained_motion(readings[unknown] - self.offset.detach(), self.shape.detach(), 0.0)
+            return readings, motion, readings.new_zeros(len(readings), self.rank), unknown
+        configuration = self.row_configuration[index]
+        directions = readings.new_zeros(len(readings), self.direction_maps.shape[1])
+        directions[unknown] = self.row_directions(readings[unknown], configuration[unknown])
+        motion[unknown] = torch.einsum("bd,bdn->bn", directions[unknown], self.direction_maps[configuration[unknown]])
+        return readings, motion, directions, unknown
+
+    def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
+        readings, motion, directions, unknown = self.batch_motion(batch)
         terms = {
             "reconstruction": reconstruction_loss(readings, motion, self.shape, self.offset, unknown),
-            "metric_constraint": metric_constraint_loss(motion, unknown),
+            "metric_constraint": metric_constraint_loss(directions, unknown) if self.constrained else readings.new_zeros(()),
             "known_load": reconstruction_loss(readings, motion, self.shape, self.offset, ~unknown),
         }
         terms["loss"] = terms["reconstruction"] + self.metric_weight * terms["metric_constraint"] + terms["known_load"]
         return terms
 
-    def unknown_loads(self, recording: CalibrationRecording) -> torch.Tensor:
-        """The fitted loads of the constant-magnitude rows, put exactly on the sphere of radius ``F``."""
+    @torch.no_grad()
+    def alternation_map(self, batch: Batch) -> torch.Tensor:
+        """One round of NOTES 5's alternation from the current ``(S, o)``; returns the new ``[S; o]`` (``(n+1) x p``).
+
+        ``u_j <- normalize(least-squares direction of z_j - o)``, then ``[S; o] <- lstsq([M 1], Z)``
+        with the known loads as their rows' motion.
+        """
+        readings, motion, _, _ = self.batch_motion(batch)
+        design = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if self.estimate_offset else motion
+        solution = torch.linalg.lstsq(design, readings).solution
+        if not self.estimate_offset:
+            solution = torch.cat([solution, self.offset.detach()[None]])
+        return solution
+
+    @torch.no_grad()
+    def alternate(self, batch: Batch, history: int = 5) -> None:
+        """``alternation_steps`` rounds of :meth:`alternation_map` on a full batch, Anderson-accelerated.
+
+        Plain alternation converges linearly and can be slow (offsets with a partial frame
+        from ``n - 1`` known loads); Anderson mixing of the last ``history`` rounds reaches the
+        same fixed point in far fewer. A round that would raise the residual restarts the history.
+        """
+        iterates, residuals = [], []
+        current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
+        best = float("inf")
+        for _ in range(self.alternation_steps):
+            mapped = self.alternation_map(batch)
+            residual = (mapped - current).flatten()
+            norm = float(residual.norm())
+            if norm > best:
+                iterates, residuals = [], []
+                current = mapped
+            else:
+                best = norm
+                iterates.append(mapped.flatten())
+                residuals.append(residual)
+                iterates, residuals = iterates[-history:], residuals[-history:]
+                current = anderson_mix(iterates, residuals).reshape(current.shape)
+            self.shape.copy_(current[: self.rank])
+            self.offset.copy_(current[self.rank])
+
+    def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
+        """The unknown-load rows' directions, put exactly on the unit sphere, and their maps (load units)."""
         unknown = ~recording.known
-        motion = constrained_motion(
-            recording.readings[unknown] / self.reading_scale - self.offset.detach(), self.shape.detach(), self.metric_weight
-        )
-        return recording.magnitude * motion / motion.norm(dim=1, keepdim=True)
+        if not self.constrained:
+            n = recording.rank
+            loads = self.motion_of(recording.readings[unknown])
+            return loads, torch.eye(n, dtype=loads.dtype).expand(len(loads), n, n)
+        configuration = recording.row_configuration[unknown]
+        directions = self.directions(recording.readings[unknown] / self.reading_scale, configuration, self.metric_weight)
+        return directions / directions.norm(dim=1, keepdim=True), recording.maps[configuration]
 
     @torch.no_grad()
     def orient(self, recording: CalibrationRecording) -> None:
@@ -128,11 +269,12 @@ class ShapeFromMotion(LinearCalibrator):
 
         Training then keeps that frame: the known-load term holds it, and with ``n - 1``
         known loads the mirror image is a discrete jump no gradient step makes. Without
-        known loads the frame stays arbitrary (``frame_fixed`` is False).
+        known loads the frame stays arbitrary (``frame_fixed`` is False). A start from known
+        loads is in their frame already.
         """
         known = recording.known
         self.frame_fixed = bool(known.any())
-        if not self.frame_fixed:
+        if not self.frame_fixed or recording.direction_maps is not None:
             return
         hint = recording.mirror_hint
         hint_motion = None
@@ -145,3 +287,14 @@ class ShapeFromMotion(LinearCalibrator):
             hint_motion = self.motion_of(recording.readings[unknown_rows[hint.sample]][None])
         rotation = frame_rotation(self.motion_of(recording.readings[known]), recording.loads[known], hint_motion, hint)
         self.shape.copy_(rotation.T @ self.shape)
+
+
+def anderson_mix(mapped: list[torch.Tensor], residuals: list[torch.Tensor]) -> torch.Tensor:
+    """Anderson acceleration: ``sum_i a_i G(x_i)`` with ``a = argmin |sum_i a_i r_i|``, ``sum_i a_i = 1``."""
+    if len(mapped) == 1:
+        return mapped[0]
+    r = torch.stack(residuals, dim=1)
+    differences = r[:, 1:] - r[:, :1]
+    gamma = torch.linalg.lstsq(differences, -r[:, 0:1]).solution[:, 0]
+    weights = torch.cat([1 - gamma.sum(dim=0, keepdim=True), gamma])
+    return torch.stack(mapped, dim=1) @ weights

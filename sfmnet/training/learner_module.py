@@ -17,8 +17,10 @@ OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimize
 class LearnerModule(L.LightningModule):
     """Thin Lightning glue over a model that owns its math.
 
-    Fitting runs ``model.initialise`` (the closed form) in ``setup``, then gradient steps on
-    ``model.loss`` for the trainer's epochs. Every epoch it
+    Fitting runs ``model.initialise`` (the closed form) in ``setup``, then for the trainer's
+    epochs either gradient steps on ``model.loss`` or, for a model that refines itself by
+    closed-form rounds (``model.alternating``), its ``alternate`` step with Lightning's manual
+    optimisation. Every epoch it
     logs the loss terms, the singular values of the shape and, for simulated data, the
     relative error of the calibration matrix.
 
@@ -31,6 +33,7 @@ class LearnerModule(L.LightningModule):
         super().__init__()
         self.model = model
         self.optimizer_factory = optimizer
+        self.automatic_optimization = not getattr(model, "alternating", False)
 
     @property
     def recording(self) -> CalibrationRecording:
@@ -46,18 +49,25 @@ class LearnerModule(L.LightningModule):
         if self.model.shape is None:
             self.model.initialise(self.recording)
 
-    def configure_optimizers(self) -> torch.optim.Optimizer:
+    def configure_optimizers(self) -> torch.optim.Optimizer | None:
+        if not self.automatic_optimization:
+            return None
         return self.optimizer_factory([p for p in self.parameters() if p.requires_grad])
 
-    def training_step(self, batch: dict[str, tuple[torch.Tensor, ...]], batch_idx: int) -> torch.Tensor:
+    def training_step(self, batch: dict[str, tuple[torch.Tensor, ...]], batch_idx: int) -> torch.Tensor | None:
         rows = batch[self.model.recording]
-        terms = self.model.loss(rows)
+        if not self.automatic_optimization:
+            self.model.alternate(rows)
+            with torch.no_grad():
+                terms = self.model.loss(rows)
+        else:
+            terms = self.model.loss(rows)
         size = len(rows[0])
         self.log_dict(
             {f"train/{name}": value.detach() for name, value in terms.items()}, on_step=False, on_epoch=True, batch_size=size
         )
         self.log("loss", terms["loss"].detach(), on_epoch=True, prog_bar=True, logger=False, batch_size=size)
-        return terms["loss"]
+        return terms["loss"] if self.automatic_optimization else None
 
     def on_train_epoch_end(self) -> None:
         singular = torch.linalg.svdvals(self.model.shape.detach())

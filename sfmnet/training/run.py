@@ -29,15 +29,23 @@ from omegaconf import DictConfig
 
 from sfmnet.calibration import Calibration
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
-from sfmnet.data.recording import CalibrationRecording
+from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import motion_figure, spectrum_figure
+from sfmnet.eval.held_out import load_errors
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.io import write_json_atomic
 from sfmnet.models.linear_calibrator import LinearCalibrator
 from sfmnet.models.shape_from_motion import ShapeFromMotion
-from sfmnet.training.learner_module import LearnerModule, matrix_error
+from sfmnet.training.cross_validation import (
+    folds_figure,
+    leave_one_group_out,
+    summarise_folds,
+    write_folds,
+)
+from sfmnet.training.fitting import fit
+from sfmnet.training.learner_module import matrix_error
 from sfmnet.training.progress import ProgressBar
 
 RESULT_FILES = ("metrics.json", "calibration.json")
@@ -60,6 +68,7 @@ def quiet_lightning() -> None:
     warnings.filterwarnings("ignore", message=".*does not have many workers.*")
     warnings.filterwarnings("ignore", message=".*The number of training batches.*")
     warnings.filterwarnings("ignore", message=".*LeafSpec.*")
+    warnings.filterwarnings("ignore", message=".*this fit will run with no optimizer.*")
 
 
 def refuse_existing_results(run_dir: Path) -> None:
@@ -78,13 +87,11 @@ def fit_method(
     run_dir: Path,
 ) -> MethodResult:
     """Fit one model through a Trainer built from ``cfg.trainer``, then evaluate and plot it."""
-    module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer))
     logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version=name, default_hp_metric=False)
     checkpoint = ModelCheckpoint(dirpath=run_dir / "checkpoints" / name, save_last=True, save_top_k=0)
     callbacks = [checkpoint, ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else [checkpoint]
-    trainer: L.Trainer = instantiate(cfg.trainer, logger=logger, callbacks=callbacks, default_root_dir=str(run_dir))
     started = time.perf_counter()
-    trainer.fit(module, datamodule=datamodule)
+    trainer = fit(model, cfg, datamodule, logger=logger, callbacks=callbacks, default_root_dir=str(run_dir))
     seconds = time.perf_counter() - started
 
     data = datamodule.data
@@ -126,6 +133,9 @@ def fit_method(
         metrics["matrix_error_relative"] = float(matrix_error(calibration.matrix, data.truth.matrix))
         metrics["offset_error_rms"] = float((calibration.offset - data.truth.offset).pow(2).mean().sqrt())
     metrics.update(evaluate_sweeps(calibration, data.evaluations, cfg.eval.smoothing_window))
+    if data.test is not None:
+        errors = load_errors(calibration, data.test.readings, data.test.true_loads)
+        metrics.update({f"test/{key}": value for key, value in errors.items()})
     log_figures(name, model, recording, data.load_unit, model.singular_values, run_dir, logger, trainer.global_step)
     return MethodResult(name=name, calibration=calibration, metrics=metrics, warnings=warnings)
 
@@ -146,10 +156,16 @@ def log_figures(
 ) -> None:
     """Save each figure as a PNG in the run directory and in TensorBoard."""
     figures = {"spectrum": spectrum_figure(singular, recording.rank, f"{name}: singular values of the readings")}
-    if isinstance(model, ShapeFromMotion):
+    if isinstance(model, ShapeFromMotion) and model.constrained:
         # The calibrated readings, not the constraint-pulled motion: they show the noise.
-        unknown = model.motion_of(recording.readings)[~recording.known]
-        figure = motion_figure(unknown, recording.magnitude, unit, f"{name}: recovered motion")
+        unknown = ~recording.known
+        if recording.direction_maps is None:
+            motion = model.motion_of(recording.readings[unknown])
+            figure = motion_figure(motion, recording.magnitude, unit, f"{name}: recovered motion")
+        else:
+            readings = recording.readings[unknown] / model.reading_scale
+            directions = model.directions(readings, recording.row_configuration[unknown], 0.0)
+            figure = motion_figure(directions, 1.0, "g", f"{name}: recovered gravity directions")
         if figure is not None:
             figures["motion"] = figure
     (run_dir / "figures").mkdir(exist_ok=True)
@@ -158,6 +174,9 @@ def log_figures(
         if logger.experiment is not None:
             logger.experiment.add_figure(f"{name}/{tag}", figure, global_step=step, close=False)
         plt.close(figure)
+    if logger.experiment is not None:
+        # The trainer has finalised its writer; this one is ours to flush.
+        logger.experiment.flush()
 
 
 def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
@@ -174,6 +193,10 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     models = {main_model.name: main_model}
     models.update({name: instantiate(model_cfg) for name, model_cfg in cfg.get("baselines", {}).items()})
     results = {name: fit_method(name, model, cfg, datamodule, run_dir) for name, model in models.items()}
+
+    if cfg.eval.get("leave_one_group_out"):
+        model_cfgs = {main_model.name: cfg.model, **cfg.get("baselines", {})}
+        cross_validate(cfg, datamodule.data, model_cfgs, main_model.recording, results, run_dir)
 
     main = results[main_model.name]
     main.calibration.save(run_dir / "calibration.json")
@@ -195,11 +218,39 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     return metrics
 
 
+def cross_validate(
+    cfg: DictConfig,
+    data: CalibrationData,
+    model_cfgs: dict[str, DictConfig],
+    recording: str,
+    results: dict[str, MethodResult],
+    run_dir: Path,
+) -> None:
+    """Leave-one-group-out errors into each method's metrics (``lopo/...``), a CSV and a figure."""
+    progress = bool(cfg.trainer.get("enable_progress_bar", True))
+    folds = leave_one_group_out(cfg, data, model_cfgs, recording, progress)
+    for name, summary in summarise_folds(folds).items():
+        results[name].metrics.update({f"lopo/{key}": value for key, value in summary.items()})
+    write_folds(folds, run_dir / "leave_one_group_out.csv")
+    figure = folds_figure(folds, data.load_unit)
+    (run_dir / "figures").mkdir(exist_ok=True)
+    figure.savefig(run_dir / "figures" / "leave_one_group_out.png", dpi=110)
+    logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version="leave_one_group_out")
+    logger.experiment.add_figure("leave_one_group_out", figure, close=True)
+    logger.experiment.flush()
+
+
 def headline(result: MethodResult, unit: str) -> str:
     m = result.metrics
     parts = []
     if "eval/max_error_pct" in m:
         parts.append(f"worst |load| error {m['eval/max_error_pct']:.3f} %, worst smoothed std {m['eval/max_std_dev']:.3f} {unit}")
+    if "lopo/force_rms" in m:
+        torque = f", torque {m['lopo/torque_rms']:.4f} N m" if "lopo/torque_rms" in m else ""
+        parts.append(f"leave-one-out force error {m['lopo/force_rms']:.3f} {unit.split(', ')[0]} RMS{torque}")
+    if "test/force_rms" in m:
+        torque = f", torque {m['test/torque_rms']:.4f} N m" if "test/torque_rms" in m else ""
+        parts.append(f"held-out force error {m['test/force_rms']:.3f} {unit.split(', ')[0]} RMS{torque}")
     parts.append(f"matrix standard error {100 * m['matrix_std_relative']:.3f} % (Cramer-Rao)")
     if "matrix_error_relative" in m:
         parts.append(f"matrix error {100 * m['matrix_error_relative']:.3f} % (vs simulated truth)")

@@ -1,0 +1,128 @@
+"""Six-axis force/torque calibration from masses in unknown orientations (NOTES 6), simulated, from CSV, and real."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from sfmnet.data.csv_calibration import CsvCalibrationDataModule
+from sfmnet.data.simulated_force_torque import ForceTorqueSensorDataModule
+from sfmnet.errors import SfmnetError
+from sfmnet.linalg.wrench import wrench_map
+from sfmnet.models.least_squares import LeastSquaresCalibration
+from sfmnet.models.shape_from_motion import ShapeFromMotion
+from sfmnet.training.learner_module import matrix_error
+from sfmnet.training.run import train
+from tests.conftest import REPO, compose_config
+from tests.test_uncertainty import refined
+
+CONFIGURATIONS = OmegaConf.to_container(OmegaConf.load(REPO / "conf" / "data" / "ft6dof.yaml"))["configurations"]
+
+
+def session(**kwargs) -> ForceTorqueSensorDataModule:
+    datamodule = ForceTorqueSensorDataModule(CONFIGURATIONS, **kwargs)
+    datamodule.setup()
+    return datamodule
+
+
+def test_wrench_map_is_force_and_moment_of_the_mass():
+    r = torch.tensor([0.01, -0.02, 0.05], dtype=torch.float64)
+    u = torch.tensor([0.6, 0.0, -0.8], dtype=torch.float64)
+    wrench = u @ wrench_map(1.5, r, 9.81)
+    force = 1.5 * 9.81 * u
+    assert torch.allclose(wrench[:3], force)
+    assert torch.allclose(wrench[3:], torch.linalg.cross(r, force))
+
+
+@pytest.mark.parametrize("refinement", ["alternation", "penalty"])
+def test_noise_free_refinement_returns_to_the_true_calibration(refinement: str):
+    """From a start 5 % off, either refinement over five configurations leads back to the truth."""
+    datamodule = session(noise_std=0.0, seed=3)
+    recording = datamodule.data.recordings["rotation"]
+    model = ShapeFromMotion(refinement=refinement)
+    model.initialise(recording)
+    with torch.no_grad():
+        model.shape.mul_(1.05)
+        model.offset.add_(0.01)
+    assert matrix_error(model.calibration_matrix(), datamodule.data.truth.matrix) > 0.04
+    model = refined(model, recording, initialise=False, epochs=5, tolerance_change=0.0)
+    assert matrix_error(model.calibration_matrix(), datamodule.data.truth.matrix) < 1e-6
+
+
+def test_six_axis_error_bars_are_honest_and_match_least_squares():
+    """Three known poses per configuration, the rest unknown: as good as least squares given every wrench."""
+    scores, ratios = [], []
+    for seed in range(10):
+        datamodule = session(seed=seed)
+        recording = datamodule.data.recordings["rotation"]
+        model = refined(ShapeFromMotion(), recording)
+        bars = model.uncertainty(recording, model.fitted_loads(recording))
+        truth = datamodule.data.truth
+        scores.append(((model.calibration_matrix() - truth.matrix) / bars.matrix_std).flatten())
+        scores.append((model.physical_offset() - truth.offset) / bars.offset_std)
+        least_squares = LeastSquaresCalibration()
+        least_squares.initialise(datamodule.data.recordings["least_squares"])
+        ratios.append(matrix_error(model.calibration_matrix(), truth.matrix) / matrix_error(least_squares.calibration_matrix(), truth.matrix))
+    within = float((torch.cat(scores).abs() < 1).double().mean())
+    assert 0.60 < within < 0.76, within
+    assert float(torch.tensor(ratios).median()) < 1.25, ratios
+
+
+def test_too_few_known_wrenches_is_one_clear_error():
+    recording = session(known_per_configuration=1).data.recordings["rotation"]
+    with pytest.raises(SfmnetError, match="at least 7 known loads spanning every axis"):
+        ShapeFromMotion().initialise(recording)
+
+
+def write_six_axis_csv(path: Path, datamodule: ForceTorqueSensorDataModule) -> None:
+    recording = datamodule.data.recordings["rotation"]
+    header = ["config", *(f"s{i}" for i in range(recording.readings.shape[1])), "fx", "fy", "fz", "mx", "my", "mz"]
+    with path.open("w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(header)
+        for c, z, w in zip(recording.configuration.tolist(), recording.readings.tolist(), recording.loads.tolist()):
+            writer.writerow([c + 1, *(f"{v:.9f}" for v in z), *("" if math.isnan(v) else f"{v:.9f}" for v in w)])
+
+
+def csv_module(path: Path, configurations: dict) -> CsvCalibrationDataModule:
+    return CsvCalibrationDataModule(
+        path=str(path), load_columns=["fx", "fy", "fz", "mx", "my", "mz"], configuration_column="config",
+        configurations=configurations, gravity=9.80665,
+    )
+
+
+def test_six_axis_csv_gives_the_same_calibration(tmp_path: Path):
+    datamodule = session(seed=1)
+    write_six_axis_csv(tmp_path / "ft.csv", datamodule)
+    from_file = csv_module(tmp_path / "ft.csv", {i + 1: c for i, c in enumerate(CONFIGURATIONS)})
+    from_file.setup()
+    models = []
+    for data in (datamodule.data, from_file.data):
+        models.append(refined(ShapeFromMotion(), data.recordings["rotation"]))
+    assert from_file.data.channels == [f"s{i}" for i in range(8)]
+    assert torch.allclose(models[0].calibration_matrix(), models[1].calibration_matrix(), rtol=1e-5, atol=1e-9)
+
+
+def test_six_axis_csv_names_a_configuration_without_mass(tmp_path: Path):
+    write_six_axis_csv(tmp_path / "ft.csv", session(seed=1))
+    partial = {i + 1: c for i, c in enumerate(CONFIGURATIONS[:4])}
+    with pytest.raises(SfmnetError, match="configuration 5 of column 'config' has no entry in data.configurations"):
+        csv_module(tmp_path / "ft.csv", partial).setup()
+
+
+def test_real_sensor_three_known_poses_beside_least_squares(run_dir: Path):
+    """The real recordings (../shared/data/ft_printed_sensor), configuration 0, leave one pose out.
+
+    Measured: shape from motion 0.55 N RMS with three known poses, least squares 0.26 N with
+    every pose known (README). The bounds catch a regression, not a tuned pass.
+    """
+    metrics = train(compose_config(["experiment=ft_printed_sensor"]), run_dir)
+    assert metrics["lopo/force_rms"] < 0.8
+    assert metrics["least_squares/lopo/force_rms"] < 0.35
+    assert (run_dir / "figures" / "leave_one_group_out.png").is_file()
+    assert len((run_dir / "leave_one_group_out.csv").read_text().splitlines()) == 1 + 2 * 9
