@@ -12,6 +12,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
 from sfmnet.cli import config_dir
+from sfmnet.data.mkv_robot import MkvDataModule
 from sfmnet.data.simulated_sensor import ForceSensor3DataModule
 
 REPO = Path(__file__).resolve().parent.parent
@@ -53,4 +54,20 @@ def experiment_overrides(experiment: str, tmp_path: Path) -> list[str]:
     if experiment == "calibrate_csv":
         write_session(tmp_path / "session.csv")
         return [f"data.path={tmp_path / 'session.csv'}", "data.magnitude=9.81", "data.time_column=time"]
+    if experiment == "sensorimotor_csv":
+        # The MK-V's own sensors and commands, written out as a log with text command labels.
+        data = MkvDataModule(train_rooms=2, test_rooms=1, episodes_per_room=2, steps=1000).build()
+        names = ["back", "off", "ahead"]
+        with (tmp_path / "log.csv").open("w", newline="") as stream:
+            writer = csv.writer(stream)
+            writer.writerow([*data.sensors, "drive", "steer"])
+            for episode in data.train:
+                for sensors, commands in zip(episode.sensors.tolist(), episode.commands.tolist()):
+                    writer.writerow([*sensors, *(names[c] for c in commands)])
+        return [
+            f"data.path={tmp_path / 'log.csv'}",
+            # Rear bumps are rare (0.2 % of steps): a short log may never see one.
+            f"data.sensor_columns=[{','.join(name for name in data.sensors if name != 'bump_rear')}]",
+            "data.command_columns=[drive,steer]",
+        ]
     return []

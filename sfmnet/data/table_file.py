@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 import difflib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -22,12 +22,14 @@ class Table:
         columns: name -> values, in file order.
         text: name -> the first offending cells, for columns that are not all numeric (e.g. labels).
         corrupt: the text columns that are mostly numbers: numeric columns with bad cells.
+        cells: every cell of each text column (category labels).
     """
 
     path: Path
     columns: dict[str, np.ndarray]
     text: dict[str, list[str]]
     corrupt: frozenset[str] = frozenset()
+    cells: dict[str, list[str]] = field(default_factory=dict)
 
     def require(self, names: list[str], role: str) -> None:
         """Raise a clear error naming each missing column and its closest match."""
@@ -41,6 +43,12 @@ class Table:
                 )
             if name in self.text:
                 raise SfmnetError(f"{role} column '{name}' of {self.path} is not numeric: {self.text[name]}")
+
+    def categorical(self, name: str, role: str) -> np.ndarray:
+        """One column's values as categories: the text labels, or the numbers of a numeric column."""
+        if name not in self.columns and name not in self.cells:
+            self.require([name], role)
+        return np.array(self.cells[name] if name in self.cells else self.columns[name], dtype=object)
 
     def numeric(self, names: list[str], role: str) -> np.ndarray:
         """``rows x len(names)`` float64, after :meth:`require`."""
@@ -102,6 +110,7 @@ def _read_csv(path: Path) -> Table:
             raise SfmnetError(f"{path} line {number} has {len(row)} cells but the header has {len(header)}")
     columns: dict[str, np.ndarray] = {}
     text: dict[str, list[str]] = {}
+    cells_of: dict[str, list[str]] = {}
     corrupt: set[str] = set()
     for index, name in enumerate(header):
         cells = [row[index].strip() for row in body]
@@ -109,11 +118,12 @@ def _read_csv(path: Path) -> Table:
         if any(value is None for value in values):
             bad = [(line, cell) for line, (cell, value) in enumerate(zip(cells, values), start=2) if value is None]
             text[name] = [f"line {line}: '{cell}'" for line, cell in bad[:3]] + ([f"... {len(bad)} cells"] if len(bad) > 3 else [])
+            cells_of[name] = cells
             if len(bad) < len(cells) / 2:
                 corrupt.add(name)
         else:
             columns[name] = np.array(values, dtype=np.float64)
-    return Table(path, columns, text, frozenset(corrupt))
+    return Table(path, columns, text, frozenset(corrupt), cells_of)
 
 
 def _number(cell: str) -> float | None:

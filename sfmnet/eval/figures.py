@@ -1,4 +1,5 @@
-"""Figures a person looks at: the recovered motion (paper Figs. 4 and 5) and the singular-value spectrum."""
+"""Figures a person looks at: the recovered motion (paper Figs. 4 and 5), the singular-value spectrum,
+and human against learnt commands (paper Fig. 6)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+import numpy as np
 import torch
 from matplotlib.figure import Figure
 
@@ -76,5 +78,34 @@ def spectrum_figure(singular_values: torch.Tensor, rank: int, title: str) -> Fig
     ax.set_xticks(index)
     ax.legend(fontsize=8)
     ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def commands_figure(
+    period: float, names: list[str], human: np.ndarray, learned: np.ndarray, confidence: np.ndarray, title: str
+) -> Figure:
+    """The paper's Fig. 6: human and learnt commands over time on one test run, with the learner's confidence.
+
+    Args:
+        period: seconds per sample; names: the ``c`` command names.
+        human, learned: ``t x c`` command values (labels; text labels are drawn by their index).
+        confidence: ``t``.
+    """
+    t = np.arange(len(human)) * period
+    fig, axes = plt.subplots(len(names) + 1, 1, figsize=(9, 1.8 * (len(names) + 1)), sharex=True)
+    for axis, name, h, l in zip(axes, names, human.T, learned.T):
+        levels = sorted(set(h.tolist()) | set(l.tolist()), key=str)
+        numeric = all(isinstance(v, (int, float, np.integer, np.floating)) for v in levels)
+        position = {v: (v if numeric else i) for i, v in enumerate(levels)}
+        axis.step(t, [position[v] for v in h], where="post", color="black", linewidth=1.2, label="human")
+        axis.step(t, [position[v] for v in l], where="post", color="tab:orange", linewidth=1.0, linestyle="--", label="learnt")
+        axis.set_yticks(sorted(position.values()), [str(v) for v in sorted(position, key=position.get)])
+        axis.set_ylabel(name)
+        axis.legend(loc="upper right", fontsize=8)
+    axes[-1].plot(t, confidence, color="tab:green", linewidth=0.8)
+    axes[-1].set_ylabel("confidence")
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig

@@ -46,6 +46,10 @@ class LinearCalibrator(nn.Module, ABC):
         self.frame_fixed = True
         self.coverage = float("nan")
 
+    @property
+    def is_initialised(self) -> bool:
+        return self.shape is not None
+
     @abstractmethod
     def initialise(self, recording: CalibrationRecording) -> None:
         """Create the parameters from the closed-form solution: the first step of fitting."""

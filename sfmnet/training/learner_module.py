@@ -1,4 +1,4 @@
-"""The one LightningModule: fits any :class:`LinearCalibrator` (closed form first, then gradient steps)."""
+"""The one LightningModule: fits every model, calibrators and sensorimotor learners alike (closed form first, then steps)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,13 @@ import lightning as L
 import torch
 
 from sfmnet.data.recording import CalibrationRecording
+from sfmnet.data.sensorimotor import SensorimotorData
 from sfmnet.errors import SfmnetError
 from sfmnet.models.linear_calibrator import LinearCalibrator
+from sfmnet.models.sensorimotor_learner import SensorimotorLearner
 
 OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimizer]
+Learner = LinearCalibrator | SensorimotorLearner
 
 
 class LearnerModule(L.LightningModule):
@@ -20,23 +23,23 @@ class LearnerModule(L.LightningModule):
     Fitting runs ``model.initialise`` (the closed form) in ``setup``, then for the trainer's
     epochs either gradient steps on ``model.loss`` or, for a model that refines itself by
     closed-form rounds (``model.alternating``), its ``alternate`` step with Lightning's manual
-    optimisation. Every epoch it
-    logs the loss terms, the singular values of the shape and, for simulated data, the
-    relative error of the calibration matrix.
+    optimisation. Every epoch it logs the loss terms, the singular values of the shape, what
+    the model's ``monitor()`` reports (e.g. an autoencoder's angle to the PCA subspace) and,
+    for simulated calibration data, the relative error of the calibration matrix.
 
     Args:
-        model: the calibration model.
+        model: a :class:`LinearCalibrator` or :class:`SensorimotorLearner`.
         optimizer: builds the optimiser from the parameters (a Hydra ``_partial_``).
     """
 
-    def __init__(self, model: LinearCalibrator, optimizer: OptimizerFactory) -> None:
+    def __init__(self, model: Learner, optimizer: OptimizerFactory) -> None:
         super().__init__()
         self.model = model
         self.optimizer_factory = optimizer
         self.automatic_optimization = not getattr(model, "alternating", False)
 
     @property
-    def recording(self) -> CalibrationRecording:
+    def recording(self) -> CalibrationRecording | SensorimotorData:
         data = self.trainer.datamodule.data
         if self.model.recording not in data.recordings:
             raise SfmnetError(
@@ -46,7 +49,7 @@ class LearnerModule(L.LightningModule):
         return data.recordings[self.model.recording]
 
     def setup(self, stage: str) -> None:
-        if self.model.shape is None:
+        if not self.model.is_initialised:
             self.model.initialise(self.recording)
 
     def configure_optimizers(self) -> torch.optim.Optimizer | None:
@@ -72,7 +75,8 @@ class LearnerModule(L.LightningModule):
     def on_train_epoch_end(self) -> None:
         singular = torch.linalg.svdvals(self.model.shape.detach())
         self.log_dict({f"shape/singular_value_{i}": value for i, value in enumerate(singular)})
-        truth = self.trainer.datamodule.data.truth
+        self.log_dict(getattr(self.model, "monitor", dict)(), prog_bar=True)
+        truth = getattr(self.trainer.datamodule.data, "truth", None)
         if truth is not None:
             self.log("error/matrix_relative", matrix_error(self.model.calibration_matrix(), truth.matrix), prog_bar=True)
 

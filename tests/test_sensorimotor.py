@@ -1,0 +1,168 @@
+"""Primordial learning (paper section 6, NOTES 8-10): the MK-V simulator, the eigenspace learner, the autoencoder."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from sfmnet.data.mkv_robot import (
+    SENSORS,
+    MkvDataModule,
+    OperatorParameters,
+    RobotParameters,
+    Room,
+    simulate_episode,
+)
+from sfmnet.data.sensorimotor_csv import SensorimotorCsvDataModule
+from sfmnet.errors import SfmnetError
+from sfmnet.eval.command_metrics import auroc, cohen_kappa, direction_accuracy, when_f1
+from sfmnet.linalg.subspace import (
+    largest_ratio_rank,
+    masked_projection,
+    parallel_analysis_rank,
+    principal_angles_deg,
+)
+from sfmnet.training.run import train
+from tests.conftest import compose_config
+
+WALL_FOLLOWING = Path(__file__).resolve().parents[2] / "shared" / "data" / "wall_following" / "sensor_readings_24.csv"
+
+
+def test_mkv_runs_are_fixed_by_the_seed_and_test_rooms_differ():
+    first, second = MkvDataModule(steps=600, seed=5), MkvDataModule(steps=600, seed=5)
+    first.setup()
+    second.setup()
+    assert torch.equal(first.data.vectors(first.data.train), second.data.vectors(second.data.train))
+    assert not np.array_equal(first.data.train[0].sensors, first.data.test[0].sensors)
+
+
+def test_mkv_physics_bumps_stops_and_stall_currents():
+    """Driven into a wall, the front switch closes and the drive current goes to stall; steering holds at its stop."""
+    robot = RobotParameters(current_noise=0.0, compass_noise=0.0, encoder_noise=0.0)
+    # A corridor too narrow to turn in: the operator's forward runs end on the wall ahead.
+    room = Room(width=3.0, depth=0.6, obstacles=np.zeros((0, 3)))
+    operator = OperatorParameters(steer_rate=5.0, pause_rate=0.0)
+    sensors, commands = simulate_episode(room, 600, robot, operator, np.random.default_rng(0))
+    column = {name: i for i, name in enumerate(SENSORS)}
+    bumped = sensors[:, column["bump_front"]] == 1
+    assert bumped.any()
+    assert np.allclose(sensors[bumped, column["drive_current"]], robot.stall_current)
+    assert np.all(sensors[bumped, column["drive_encoder"]] == 0)
+    assert np.abs(sensors[:, column["steer_encoder"]]).max() <= robot.max_steer_deg
+    at_stop = (np.abs(sensors[:, column["steer_encoder"]]) == robot.max_steer_deg) & (commands[:, 1] != 0)
+    assert np.isclose(sensors[at_stop, column["steer_current"]], robot.steer_stall_current).mean() > 0.5
+    assert set(np.unique(commands[:, 0])) <= {-1, 0, 1}
+
+
+def test_masked_projection_fills_in_unobserved_columns_and_keeps_zeros():
+    generator = torch.Generator().manual_seed(0)
+    basis = torch.randn(3, 9, generator=generator, dtype=torch.float64)
+    values = torch.randn(20, 3, generator=generator, dtype=torch.float64) @ basis
+    values[:, 0] = 0.0  # a real zero in an observed column is a value, not a gap
+    basis[:, 0] = 0.0
+    observed = torch.tensor([True] * 6 + [False] * 3)
+    hidden = values.clone()
+    hidden[:, ~observed] = 1e6  # whatever sits in unobserved columns must not matter
+    coefficients = masked_projection(basis, hidden, observed)
+    assert torch.allclose(coefficients @ basis, values, atol=1e-10)
+
+
+def test_rank_rules():
+    assert largest_ratio_rank(torch.tensor([10.0, 9.0, 1.0, 0.9, 0.0])) == 2
+    generator = torch.Generator().manual_seed(1)
+    signal = torch.randn(2000, 3, generator=generator, dtype=torch.float64) @ torch.randn(3, 12, generator=generator, dtype=torch.float64)
+    noisy = signal + torch.randn(2000, 12, generator=generator, dtype=torch.float64)
+    standardised = (noisy - noisy.mean(0)) / noisy.std(0)
+    assert parallel_analysis_rank(standardised, generator) == 3
+
+
+def test_principal_angles():
+    a = torch.eye(4, dtype=torch.float64)[:2]
+    b = torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 1.0, 0.0]], dtype=torch.float64)
+    assert torch.allclose(principal_angles_deg(a, b), torch.tensor([0.0, 45.0], dtype=torch.float64), atol=1e-6)
+
+
+def test_command_metrics_on_known_cases():
+    truth = np.array([0, 0, 1, 1, -1, -1, 0, 1])
+    predicted = np.array([0, 1, 1, -1, -1, 0, 0, 1])
+    assert when_f1(truth, predicted) == pytest.approx(2 * 4 / (5 + 5))
+    assert direction_accuracy(truth, predicted) == pytest.approx(3 / 4)
+    assert cohen_kappa(truth, truth) == 1.0
+    assert auroc(np.array([0.1, 0.2, 0.8, 0.9]), np.array([0, 0, 1, 1])) == 1.0
+    assert auroc(np.array([0.5, 0.5]), np.array([0, 1])) == 0.5
+
+
+def test_mkv_eigenspace_learner_agrees_with_the_teleoperator(run_dir: Path):
+    """Issue 4's bar on test rooms: drive agreement >= 0.90, steer-when F1 >= 0.75 (measured 0.974 and 0.838)."""
+    metrics = train(compose_config(["experiment=mkv_pca"]), run_dir)
+    assert metrics["drive_accuracy"] >= 0.90
+    assert metrics["steer_when_f1"] >= 0.75
+    assert 0 <= metrics["steer_direction_accuracy"] <= 1
+    assert {"drive_kappa", "confidence_auroc", "heldout_reconstruction_error", "fit_seconds"} <= set(metrics)
+    saved = np.load(run_dir / "learner.npz")
+    assert saved["basis"].shape == (metrics["rank"], len(saved["columns"]))
+    for name in ("eigenspace_commands.png", "eigenspace_spectrum.png"):
+        assert (run_dir / "figures" / name).stat().st_size > 10_000
+    assert len((run_dir / "predictions.csv").read_text().splitlines()) == 1 + 2 * 3 * 1000
+
+
+def test_autoencoder_finds_the_principal_subspace(run_dir: Path):
+    metrics = train(compose_config(["experiment=mkv_compare", "trainer.max_epochs=3"]), run_dir)
+    assert metrics["linear_autoencoder/subspace_angle_deg"] < 2.0
+    assert metrics["linear_autoencoder/rank"] == metrics["rank"]
+    assert abs(metrics["linear_autoencoder/drive_accuracy"] - metrics["drive_accuracy"]) < 0.02
+
+
+def test_wall_following_held_out_accuracy(run_dir: Path):
+    """The real log: rank by parallel analysis, last 30 % held out (majority 0.41, least squares 0.64; measured 0.619)."""
+    metrics = train(compose_config(["experiment=wall_following"]), run_dir)
+    assert metrics["OUTPUT_accuracy"] >= 0.60
+
+
+def write_log(path: Path, rows: int = 300, constant: bool = False) -> None:
+    generator = np.random.default_rng(0)
+    with path.open("w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(["t", "range_left", "range_right", "cmd"])
+        for i in range(rows):
+            left, right = generator.uniform(0.2, 2.0, size=2)
+            command = "left" if left > right + 0.3 else "right" if right > left + 0.3 else "straight"
+            if rows < 10:  # a tiny log still shows every command in training
+                command = ["left", "right", "straight"][i % 3]
+            writer.writerow([i, f"{left:.3f}", "1.0" if constant else f"{right:.3f}", command])
+
+
+def csv_module(path: Path, **overrides) -> SensorimotorCsvDataModule:
+    options = {"sensor_columns": ["range_left", "range_right"], "command_columns": ["cmd"], **overrides}
+    return SensorimotorCsvDataModule(path=str(path), **options)
+
+
+def test_categorical_commands_round_trip(tmp_path: Path):
+    write_log(tmp_path / "log.csv")
+    module = csv_module(tmp_path / "log.csv")
+    module.setup()
+    assert module.data.commands[0].labels == ["left", "right", "straight"]
+    assert len(module.data.test[0].sensors) == 90
+
+
+@pytest.mark.parametrize(
+    "rows,constant,overrides,message",
+    [
+        (300, False, {"command_columns": ["command"]}, r"command column 'command' is not in .* \(did you mean 'cmd'\?\)"),
+        (300, True, {}, "sensor column range_right is constant"),
+        (6, False, {}, "only 4 training samples for 5 columns"),
+    ],
+    ids=["missing-command-column", "constant-sensor", "fewer-rows-than-columns"],
+)
+def test_bad_sensorimotor_logs(tmp_path: Path, rows: int, constant: bool, overrides: dict, message: str):
+    write_log(tmp_path / "log.csv", rows=rows, constant=constant)
+    with pytest.raises(SfmnetError, match=message):
+        csv_module(tmp_path / "log.csv", **overrides).setup()
+
+
+def test_wall_following_file_is_where_the_tests_expect():
+    assert WALL_FOLLOWING.is_file(), "tests read the real log from ../shared/data (see README)"
