@@ -6,6 +6,7 @@ import csv
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
@@ -54,6 +55,10 @@ def experiment_overrides(experiment: str, tmp_path: Path) -> list[str]:
     if experiment == "calibrate_csv":
         write_session(tmp_path / "session.csv")
         return [f"data.path={tmp_path / 'session.csv'}", "data.magnitude=9.81", "data.time_column=time"]
+    if experiment == "pca":
+        generator = np.random.default_rng(0)
+        np.save(tmp_path / "rows.npy", generator.normal(size=(5000, 6)) @ generator.normal(size=(6, 6)))
+        return [f"data.path={tmp_path / 'rows.npy'}", "model.rank=2"]
     if experiment == "sensorimotor_csv":
         # The MK-V's own sensors and commands, written out as a log with text command labels.
         data = MkvDataModule(train_rooms=2, test_rooms=1, episodes_per_room=2, steps=1000).build()

@@ -21,9 +21,11 @@ class LearnerModule(L.LightningModule):
     """Thin Lightning glue over a model that owns its math.
 
     Fitting runs ``model.initialise`` (the closed form) in ``setup``, then for the trainer's
-    epochs either gradient steps on ``model.loss`` or, for a model that refines itself by
-    closed-form rounds (``model.alternating``), its ``alternate`` step with Lightning's manual
-    optimisation. Every epoch it logs the loss terms, the singular values of the shape, what
+    epochs either gradient steps on ``model.loss``, or for a model that refines itself by
+    closed-form rounds (``model.alternating``) its ``alternate`` step, or for a model fitted
+    from sufficient statistics (``model.streaming``) one pass of ``accumulate`` per epoch,
+    summed over processes by the strategy and solved by ``finalise`` (both with Lightning's
+    manual optimisation). Every epoch it logs the loss terms, the singular values of the shape, what
     the model's ``monitor()`` reports (e.g. an autoencoder's angle to the PCA subspace) and,
     for simulated calibration data, the relative error of the calibration matrix.
 
@@ -36,7 +38,9 @@ class LearnerModule(L.LightningModule):
         super().__init__()
         self.model = model
         self.optimizer_factory = optimizer
-        self.automatic_optimization = not getattr(model, "alternating", False)
+        # Statistics models add each batch to sums and solve once the pass is complete.
+        self.streaming = getattr(model, "streaming", False)
+        self.automatic_optimization = not (getattr(model, "alternating", False) or self.streaming)
 
     @property
     def recording(self) -> CalibrationRecording | SensorimotorData:
@@ -57,8 +61,15 @@ class LearnerModule(L.LightningModule):
             return None
         return self.optimizer_factory([p for p in self.parameters() if p.requires_grad])
 
+    def on_train_epoch_start(self) -> None:
+        if self.streaming:
+            self.model.begin_pass()
+
     def training_step(self, batch: dict[str, tuple[torch.Tensor, ...]], batch_idx: int) -> torch.Tensor | None:
         rows = batch[self.model.recording]
+        if self.streaming:
+            self.model.accumulate(rows)
+            return None
         if not self.automatic_optimization:
             self.model.alternate(rows)
             with torch.no_grad():
@@ -73,6 +84,9 @@ class LearnerModule(L.LightningModule):
         return terms["loss"] if self.automatic_optimization else None
 
     def on_train_epoch_end(self) -> None:
+        if self.streaming:
+            self.model.reduce(self.trainer.strategy)
+            self.model.finalise()
         singular = torch.linalg.svdvals(self.model.shape.detach())
         self.log_dict({f"shape/singular_value_{i}": value for i, value in enumerate(singular)})
         self.log_dict(getattr(self.model, "monitor", dict)(), prog_bar=True)

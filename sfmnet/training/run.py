@@ -1,6 +1,7 @@
 """One training run: build the data and each method from the config, fit them through one Trainer setup, write results.
 
-Sensorimotor data (primordial learning) goes to :func:`train_sensorimotor`; what follows is calibration.
+Sensorimotor data (primordial learning) goes to :func:`train_sensorimotor`, a row file to
+:func:`train_streaming`; what follows is calibration.
 
 Run directory layout::
 
@@ -32,6 +33,7 @@ from omegaconf import DictConfig
 from sfmnet.calibration import Calibration
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
+from sfmnet.data.row_file import RowFileDataModule
 from sfmnet.data.sensorimotor import SensorimotorDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.eval.diagnostics import calibration_diagnostics
@@ -51,6 +53,7 @@ from sfmnet.training.fitting import fit
 from sfmnet.training.learner_module import matrix_error
 from sfmnet.training.progress import ProgressBar
 from sfmnet.training.sensorimotor_run import train_sensorimotor
+from sfmnet.training.streaming_run import train_streaming
 
 RESULT_FILES = ("metrics.json", "calibration.json")
 
@@ -190,10 +193,12 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     quiet_lightning()
     torch.set_num_threads(cfg.threads)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
-    datamodule: CalibrationDataModule | SensorimotorDataModule = instantiate(cfg.data)
+    datamodule: CalibrationDataModule | SensorimotorDataModule | RowFileDataModule = instantiate(cfg.data)
     datamodule.setup("fit")
     if isinstance(datamodule, SensorimotorDataModule):
         return train_sensorimotor(cfg, datamodule, run_dir)
+    if isinstance(datamodule, RowFileDataModule):
+        return train_streaming(cfg, datamodule, run_dir)
 
     main_model: LinearCalibrator = instantiate(cfg.model)
     models = {main_model.name: main_model}
