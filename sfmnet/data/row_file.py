@@ -60,7 +60,10 @@ def npy_layout(path: Path) -> NpyLayout:
         shape, fortran_order, dtype = read_header(stream)
         offset = stream.tell()
     if fortran_order or len(shape) != 2:
-        raise SfmnetError(f"{path} holds a {'Fortran-order ' if fortran_order else ''}array of shape {shape}: save a C-order 2-D array (np.save of a row matrix)")
+        raise SfmnetError(
+            f"{path} holds {'a Fortran-order' if fortran_order else 'an'} array of shape {shape}: "
+            "save a C-order 2-D array (np.save of a row matrix)"
+        )
     return NpyLayout(path, offset, dtype, shape)
 
 

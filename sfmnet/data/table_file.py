@@ -135,8 +135,12 @@ def _number(cell: str) -> float | None:
         return None
 
 
+# Beyond this no sensor reads: a corrupt cell or a unit slip, which would swamp every other row.
+IMPLAUSIBLE = 1e15
+
+
 def check_finite(values: np.ndarray, names: list[str], path: Path, role: str) -> None:
-    """Refuse NaN or infinite readings, saying how many and where."""
+    """Refuse NaN, infinite or implausibly large readings, saying how many and where."""
     bad = ~np.isfinite(values)
     if bad.any():
         rows, cols = np.nonzero(bad)
@@ -144,4 +148,12 @@ def check_finite(values: np.ndarray, names: list[str], path: Path, role: str) ->
         raise SfmnetError(
             f"{path} has {int(bad.sum())} empty, NaN or infinite {role} values (first: {where}): "
             "remove or repair those rows"
+        )
+    huge = np.abs(values) > IMPLAUSIBLE
+    if huge.any():
+        rows, cols = np.nonzero(huge)
+        where = ", ".join(f"line {r + 2} column {names[c]} ({values[r, c]:.3g})" for r, c in zip(rows[:3], cols[:3]))
+        raise SfmnetError(
+            f"{path} has {int(huge.sum())} {role} values beyond {IMPLAUSIBLE:.0e} (first: {where}): "
+            "a corrupt cell or a unit slip; repair those rows"
         )

@@ -72,7 +72,7 @@ def frame_rotation(
     u, _, vt = torch.linalg.svd(estimated_loads.T @ known_loads)
     rotation = u @ vt
     if span == n:
-        return rotation
+        return check_agreement(estimated_loads @ rotation, known_loads, rotation)
     if hint is None or hint_motion is None:
         raise SfmnetError(
             f"{span} known loads fix the {n}-axis frame only up to a mirror image: set "
@@ -89,4 +89,27 @@ def frame_rotation(
         flip = torch.eye(n, dtype=rotation.dtype)
         flip[-1, -1] = -1
         rotation = u @ flip @ vt
+    return check_agreement(estimated_loads @ rotation, known_loads, rotation)
+
+
+# Known loads set to 0.2 degrees sit well inside this, and so does a nonlinear real sensor's
+# closed-form frame (11 degrees on ../shared/data/ft_printed_sensor); a mislabelled load does not.
+MAX_DISAGREEMENT_DEG = 30.0
+
+
+def check_agreement(placed: torch.Tensor, known_loads: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
+    """Return ``rotation`` unless a known load lies far from where the readings put it once the frame is fitted.
+
+    Raises:
+        SfmnetError: the known loads contradict each other (their angles differ from the readings').
+    """
+    cosine = (placed * known_loads).sum(dim=1) / (placed.norm(dim=1) * known_loads.norm(dim=1))
+    angles = torch.rad2deg(torch.arccos(cosine.clamp(-1.0, 1.0)))
+    worst = int(angles.argmax())
+    if float(angles[worst]) > MAX_DISAGREEMENT_DEG:
+        raise SfmnetError(
+            f"known load {worst + 1} of {len(known_loads)} lies {float(angles[worst]):.0f} degrees from where the readings "
+            "put it relative to the other known loads: the known loads contradict each other; check their columns, "
+            "signs and rows"
+        )
     return rotation

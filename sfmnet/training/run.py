@@ -92,13 +92,16 @@ def fit_method(
     cfg: DictConfig,
     datamodule: CalibrationDataModule,
     run_dir: Path,
+    ckpt_path: str | None = None,
 ) -> MethodResult:
-    """Fit one model through a Trainer built from ``cfg.trainer``, then evaluate and plot it."""
+    """Fit one model through a Trainer built from ``cfg.trainer`` (resuming from ``ckpt_path``), then evaluate and plot it."""
     logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version=name, default_hp_metric=False)
     checkpoint = ModelCheckpoint(dirpath=run_dir / "checkpoints" / name, save_last=True, save_top_k=0)
     callbacks = [checkpoint, ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else [checkpoint]
     started = time.perf_counter()
-    trainer = fit(model, cfg, datamodule, logger=logger, callbacks=callbacks, default_root_dir=str(run_dir))
+    trainer = fit(
+        model, cfg, datamodule, ckpt_path=ckpt_path, logger=logger, callbacks=callbacks, default_root_dir=str(run_dir)
+    )
     seconds = time.perf_counter() - started
 
     data = datamodule.data
@@ -203,7 +206,11 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     main_model: LinearCalibrator = instantiate(cfg.model)
     models = {main_model.name: main_model}
     models.update({name: instantiate(model_cfg) for name, model_cfg in cfg.get("baselines", {}).items()})
-    results = {name: fit_method(name, model, cfg, datamodule, run_dir) for name, model in models.items()}
+    # Resuming (ckpt_path) applies to the main method; baselines refit, as deterministically.
+    results = {
+        name: fit_method(name, model, cfg, datamodule, run_dir, cfg.get("ckpt_path") if model is main_model else None)
+        for name, model in models.items()
+    }
 
     if cfg.eval.get("leave_one_group_out"):
         model_cfgs = {main_model.name: cfg.model, **cfg.get("baselines", {})}

@@ -1,0 +1,236 @@
+"""Every bad input a user can give, in one table: each is refused with one message naming the cause and the remedy.
+
+Each case prepares its files in ``tmp_path`` and returns the action to run; the action must
+raise :class:`SfmnetError` whose text matches. The CLI turns exactly these errors into one line
+on stderr and exit status 2 (``tests/test_cli.py`` checks that path end to end, and the last
+cases here run it for ``train`` and ``apply``).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sfmnet.apply import apply_calibration
+from sfmnet.cli import config_dir
+from sfmnet.config_check import check_overrides
+from sfmnet.data.ft_printed_sensor import FtPrintedSensorDataModule
+from sfmnet.data.row_file import RowFileDataModule
+from sfmnet.data.sensorimotor_csv import SensorimotorCsvDataModule
+from sfmnet.errors import SfmnetError
+from sfmnet.training.run import train
+from tests.conftest import REPO, compose_config, write_session
+
+Action = Callable[[], object]
+
+
+def calibrate(tmp_path: Path, *overrides: str, edit=None, known_loads: int = 3) -> Action:
+    """Write a simulated session (optionally edited) and return the calibrate_csv run on it."""
+    session = tmp_path / "session.csv"
+    write_session(session, known_loads=known_loads, edit=edit)
+    cfg = compose_config(
+        ["experiment=calibrate_csv", f"data.path={session}", "data.magnitude=9.81", "data.time_column=time", *overrides]
+    )
+    return lambda: train(cfg, tmp_path / "run")
+
+
+def calibrate_file(tmp_path: Path, text: str, name: str = "session.csv") -> Action:
+    path = tmp_path / name
+    path.write_text(text)
+    cfg = compose_config(["experiment=calibrate_csv", f"data.path={path}", "data.magnitude=9.81"])
+    return lambda: train(cfg, tmp_path / "run")
+
+
+def set_cell(line: int, column: int, value: str):
+    def edit(rows: list[list[str]]) -> None:
+        rows[line - 1][column] = value
+
+    return edit
+
+
+def rename_column(column: int, name: str):
+    def edit(rows: list[list[str]]) -> None:
+        rows[0][column] = name
+
+    return edit
+
+
+def flatten_channel(column: int):
+    def edit(rows: list[list[str]]) -> None:
+        for row in rows[1:]:
+            row[column] = "0.5"
+
+    return edit
+
+
+def keep_rows(count: int):
+    def edit(rows: list[list[str]]) -> None:
+        del rows[1 + count : -3]
+
+    return edit
+
+
+def project_unknown_loads(keep_axes: int):
+    """Rewrite the unknown rows' readings as if the loads lay on a line (1) or a plane (2)."""
+
+    def edit(rows: list[list[str]]) -> None:
+        readings = np.array([[float(v) for v in row[1:7]] for row in rows[1:]])
+        unknown = [i for i, row in enumerate(rows[1:]) if row[7] == ""]
+        centred = readings[unknown] - readings[unknown].mean(axis=0)
+        u, s, vt = np.linalg.svd(centred, full_matrices=False)
+        flat = readings[unknown].mean(axis=0) + (u[:, :keep_axes] * s[:keep_axes]) @ vt[:keep_axes]
+        for i, values in zip(unknown, flat):
+            rows[1 + i][1:7] = [f"{v:.9f}" for v in values]
+
+    return edit
+
+
+def contradict_known_loads(rows: list[list[str]]) -> None:
+    """The load along +fy written as pointing nearly along -fx (same magnitude): 80 degrees off."""
+    angle = np.radians(170.0)
+    rows[-2][7:10] = [f"{9.81 * np.cos(angle):.6f}", f"{9.81 * np.sin(angle):.6f}", "0.000000"]
+
+
+def trained_calibration(tmp_path: Path) -> Path:
+    calibrate(tmp_path)()
+    return tmp_path / "run" / "calibration.json"
+
+
+def apply_to(tmp_path: Path, calibration: Path, readings_text: str | None = None, output_exists: bool = False) -> Action:
+    source = tmp_path / "readings.csv"
+    if readings_text is None:
+        write_session(source)
+    else:
+        source.write_text(readings_text)
+    output = tmp_path / "loads.csv"
+    if output_exists:
+        output.write_text("keep me\n")
+    return lambda: apply_calibration(calibration, source, output, overwrite=False)
+
+
+def corrupt_calibration(tmp_path: Path) -> Action:
+    path = tmp_path / "calibration.json"
+    path.write_text('{"matrix": [[1, 2], ')
+    return apply_to(tmp_path, path, "s0,s1\n1,2\n")
+
+
+def wrong_channel_calibration(tmp_path: Path) -> Action:
+    calibration = trained_calibration(tmp_path)
+    return apply_to(tmp_path, calibration, "a,b,c\n1,2,3\n")
+
+
+def sensorimotor(tmp_path: Path, text: str, sensors: list[str], commands: list[str]) -> Action:
+    path = tmp_path / "log.csv"
+    path.write_text(text)
+    return lambda: SensorimotorCsvDataModule(str(path), sensor_columns=sensors, command_columns=commands).setup()
+
+
+def log_text(rows: int, constant: bool = False) -> str:
+    generator = np.random.default_rng(0)
+    lines = ["a,b,cmd"]
+    for i in range(rows):
+        a, b = generator.uniform(size=2)
+        lines.append(f"{a:.4f},{1.0 if constant else b:.4f},{['go', 'stop', 'turn'][i % 3]}")
+    return "\n".join(lines) + "\n"
+
+
+def row_file(tmp_path: Path, name: str, content) -> Action:
+    path = tmp_path / name
+    if isinstance(content, str):
+        path.write_text(content)
+    else:
+        np.save(path, content)
+    return lambda: RowFileDataModule(str(path)).setup()
+
+
+def pca_rank(tmp_path: Path) -> Action:
+    np.save(tmp_path / "rows.npy", np.random.default_rng(0).normal(size=(100, 4)))
+    cfg = compose_config(["experiment=pca", f"data.path={tmp_path / 'rows.npy'}", "model.rank=7"])
+    return lambda: train(cfg, tmp_path / "run")
+
+
+def unreadable_npy(tmp_path: Path) -> Action:
+    (tmp_path / "session.npy").write_bytes(b"\x93NUMPY garbage that is not an array")
+    cfg = compose_config(["experiment=calibrate_csv", f"data.path={tmp_path / 'session.npy'}", "data.magnitude=9.81"])
+    return lambda: train(cfg, tmp_path / "run")
+
+
+def simulated(*overrides: str) -> Callable[[Path], Action]:
+    return lambda tmp_path: (lambda: train(compose_config(list(overrides)), tmp_path / "run"))
+
+
+CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
+    # train, calibration from a file (conf/data/csv.yaml)
+    "empty file": (lambda t: calibrate_file(t, ""), r"is empty: give a CSV with a header row"),
+    "header only": (lambda t: calibrate_file(t, "s0,s1,fx,fy,fz\n"), r"has a header but no data rows"),
+    "non-numeric cell": (lambda t: calibrate(t, edit=set_cell(5, 2, "n/a")), r"channel column 's1' of .* is not numeric"),
+    "NaN value": (lambda t: calibrate(t, edit=set_cell(7, 3, "nan")), r"1 empty, NaN or infinite reading values \(first: line 7 column s2\)"),
+    "infinite value": (lambda t: calibrate(t, edit=set_cell(9, 1, "-inf")), r"1 empty, NaN or infinite reading values \(first: line 9 column s0\)"),
+    "value of 1e30": (lambda t: calibrate(t, edit=set_cell(4, 2, "1e30")), r"1 reading values beyond 1e\+15 \(first: line 4 column s1 \(1e\+30\)\): a corrupt cell or a unit slip"),
+    "duplicate column names": (lambda t: calibrate(t, edit=rename_column(2, "s0")), r"duplicate column names: s0; rename them"),
+    "missing column": (lambda t: calibrate(t, "data.load_columns=[fx,fy,fzz]"), r"load column 'fzz' is not in .* \(did you mean 'fz'\?\)"),
+    "fewer channels than loads": (lambda t: calibrate(t, "data.channel_columns=[s0,s1]"), r"2 channel columns for 3 load axes"),
+    "fewer samples than unknowns": (lambda t: calibrate(t, edit=keep_rows(5)), r"only 8 samples for 9 unknowns of the metric constraint with offsets"),
+    "collinear motion": (lambda t: calibrate(t, edit=project_unknown_loads(1)), r"collinear"),
+    "coplanar motion": (lambda t: calibrate(t, edit=project_unknown_loads(2)), r"coplanar"),
+    "constant channel": (lambda t: calibrate(t, edit=flatten_channel(4)), r"channel s3 of .* is constant"),
+    "wrong magnitude": (lambda t: calibrate(t, "data.magnitude=12.0"), r"has magnitude 9.81 but data.magnitude is 12"),
+    "contradictory known loads": (lambda t: calibrate(t, edit=contradict_known_loads), r"known load \d of 3 lies \d+ degrees from where the readings put it .*: the known loads contradict each other"),
+    "n-1 known loads without the mirror bit": (lambda t: calibrate(t, known_loads=2), r"only up to a mirror image: set data.mirror_hint="),
+    "non-existent path": (lambda t: (lambda: train(compose_config(["experiment=calibrate_csv", f"data.path={t / 'nope.csv'}", "data.magnitude=9.81"]), t / "run")), r"nope.csv does not exist: check data.path"),
+    "unreadable file": (unreadable_npy, r"cannot be read as .npy"),
+    # apply
+    "missing calibration.json": (lambda t: apply_to(t, t / "none.json", "s0\n1\n"), r"calibration file .* does not exist"),
+    "corrupt calibration.json": (corrupt_calibration, r"cannot be read as JSON"),
+    "channel count mismatch at apply": (wrong_channel_calibration, r"lacks channels s0, s1, s2, s3, s4, s5 of the calibration"),
+    "output path already exists": (lambda t: apply_to(t, trained_calibration(t), output_exists=True), r"loads.csv already exists: choose another output= or add overwrite=true"),
+    # simulated sensors and other data modules
+    "metric constraint without a magnitude": (simulated("model.rank=5", "experiment=lord3dof"), r"model.rank is 5 but the data has 3 load axes"),
+    "real recordings folder missing": (lambda t: (lambda: FtPrintedSensorDataModule(str(t / "none"), {}, [0]).setup()), r"is not a folder of the sensor's CSV files"),
+    "sensorimotor: command column missing": (lambda t: sensorimotor(t, log_text(300), ["a", "b"], ["command"]), r"command column 'command' is not in .* \(did you mean 'cmd'\?\)"),
+    "sensorimotor: constant sensor": (lambda t: sensorimotor(t, log_text(300, constant=True), ["a", "b"], ["cmd"]), r"sensor column b is constant in the training data"),
+    "sensorimotor: fewer rows than columns": (lambda t: sensorimotor(t, log_text(6), ["a", "b"], ["cmd"]), r"only 4 training samples for 5 columns"),
+    "rows: non-numeric CSV cell": (lambda t: row_file(t, "rows.csv", "a,b\n1,2\n3,x\n"), r"line 3 has a non-numeric cell"),
+    "rows: not a matrix": (lambda t: row_file(t, "rows.npy", np.arange(5.0)), r"holds an array of shape \(5,\): save a C-order 2-D array"),
+    "rows: rank above the columns": (pca_rank, r"model.rank is 7 but the file has 4 columns: choose 1 to 4"),
+    "unknown config key": (lambda t: (lambda: check_overrides(["experiment=lord3dof", "data.nosie_fraction=0.1"], config_dir())), r"unknown config key 'data.nosie_fraction' \(did you mean 'data.noise_fraction'\?\)"),
+    "unknown experiment": (lambda t: (lambda: check_overrides(["experiment=lord3", "seed=1"], config_dir())), r"unknown experiment 'lord3'"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_bad_input_is_refused_with_one_clear_message(case: str, tmp_path: Path):
+    prepare, message = CASES[case]
+    action = prepare(tmp_path)
+    with pytest.raises(SfmnetError, match=message) as caught:
+        action()
+    assert "\n" not in str(caught.value)
+    # Nothing a user made is overwritten: a refused apply leaves an existing output as it was.
+    if (tmp_path / "loads.csv").exists() and case == "output path already exists":
+        assert (tmp_path / "loads.csv").read_text() == "keep me\n"
+
+
+def test_table_is_long_enough():
+    assert len(CASES) >= 25
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["train", "experiment=calibrate_csv", "data.path=/nonexistent/session.csv", "data.magnitude=9.81"], "error: /nonexistent/session.csv does not exist: check data.path"),
+        (["apply", "calibration=/nonexistent/c.json", "input=/nonexistent/r.csv", "output=/tmp/never.csv"], "error: calibration file /nonexistent/c.json does not exist: give the calibration.json of a run"),
+    ],
+    ids=["train", "apply"],
+)
+def test_cli_prints_one_line_and_exits_2(args: list[str], message: str, tmp_path: Path):
+    if args[0] == "train":
+        args = [*args, f"hydra.run.dir={tmp_path / 'run'}", "trainer.enable_progress_bar=false"]
+    done = subprocess.run([sys.executable, "-m", "sfmnet", *args], cwd=REPO, capture_output=True, text=True, check=False)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [message]
+    assert "Traceback" not in done.stdout + done.stderr
