@@ -84,10 +84,10 @@ def check_train_arguments(args: list[str]) -> None:
     if os.environ.get("LOCAL_RANK", "0") != "0" or "--help" in args or "-h" in args:
         return
     refuse_used_run_dir(args)
-    if "-m" not in args and "--multirun" not in args:
-        from sfmnet.config_check import check_overrides
+    from sfmnet.config_check import check_overrides
 
-        check_overrides(args, config_dir())
+    sweep = "-m" in args or "--multirun" in args
+    check_overrides([a for a in args if a not in ("-m", "--multirun")], config_dir(), sweep=sweep)
 
 
 def train_command() -> None:

@@ -26,11 +26,12 @@ def suggestion(name: str, choices: list[str]) -> str:
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 
-def check_overrides(overrides: list[str], config_dir: str) -> None:
+def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) -> None:
     """Raise :class:`SfmnetError` naming the first override that selects or sets something that does not exist.
 
     Group selections (``experiment=fingertp``) are checked against the files in ``conf/<group>/``;
-    keys (``data.nosie_fraction=0.1``) against the config they would change. Sweeps (``-m``),
+    keys (``data.nosie_fraction=0.1``) against the config they would change. In a sweep (``-m``)
+    every value of a swept group is checked, and the keys against the first combination.
     ``hydra.*`` keys and ``+``/``~`` overrides are left to Hydra.
     """
     from hydra import compose, initialize_config_dir
@@ -47,11 +48,13 @@ def check_overrides(overrides: list[str], config_dir: str) -> None:
         if key.startswith(("hydra.", "+", "~")):
             continue
         if key in groups:
-            if value not in groups[key]:
-                raise SfmnetError(
-                    f"unknown {key} '{value}'{suggestion(value, groups[key])}: choose one of {', '.join(groups[key])}"
-                )
-            selections.append(item)
+            values = [v.strip() for v in value.split(",")] if sweep else [value]
+            for choice in values:
+                if choice not in groups[key]:
+                    raise SfmnetError(
+                        f"unknown {key} '{choice}'{suggestion(choice, groups[key])}: choose one of {', '.join(groups[key])}"
+                    )
+            selections.append(f"{key}={values[0]}")
         else:
             settings.append(key)
     with initialize_config_dir(config_dir=config_dir, version_base="1.3"):

@@ -191,6 +191,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "output path already exists": (lambda t: apply_to(t, trained_calibration(t), output_exists=True), r"loads.csv already exists: choose another output= or add overwrite=true"),
     # simulated sensors and other data modules
     "metric constraint without a magnitude": (simulated("model.rank=5", "experiment=lord3dof"), r"model.rank is 5 but the data has 3 load axes"),
+    "six axes with too few known wrenches": (simulated("experiment=ft6dof", "data.known_per_configuration=1"), r"only 5 rows have one: give at least 7 known loads spanning every axis"),
+    "MK-V runs too short to move every sensor": (simulated("experiment=mkv_pca", "data.steps=40", "data.train_rooms=1"), r"sensor column .*bump_rear.* is constant in the training data"),
     "real recordings folder missing": (lambda t: (lambda: FtPrintedSensorDataModule(str(t / "none"), {}, [0]).setup()), r"is not a folder of the sensor's CSV files"),
     "sensorimotor: command column missing": (lambda t: sensorimotor(t, log_text(300), ["a", "b"], ["command"]), r"command column 'command' is not in .* \(did you mean 'cmd'\?\)"),
     "sensorimotor: constant sensor": (lambda t: sensorimotor(t, log_text(300, constant=True), ["a", "b"], ["cmd"]), r"sensor column b is constant in the training data"),
@@ -199,6 +201,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "rows: not a matrix": (lambda t: row_file(t, "rows.npy", np.arange(5.0)), r"holds an array of shape \(5,\): save a C-order 2-D array"),
     "rows: rank above the columns": (pca_rank, r"model.rank is 7 but the file has 4 columns: choose 1 to 4"),
     "unknown config key": (lambda t: (lambda: check_overrides(["experiment=lord3dof", "data.nosie_fraction=0.1"], config_dir())), r"unknown config key 'data.nosie_fraction' \(did you mean 'data.noise_fraction'\?\)"),
+    "unknown experiment in a sweep": (lambda t: (lambda: check_overrides(["experiment=fingertip,lord3"], config_dir(), sweep=True)), r"unknown experiment 'lord3' \(did you mean 'lord3dof'\?\)"),
     "unknown experiment": (lambda t: (lambda: check_overrides(["experiment=lord3", "seed=1"], config_dir())), r"unknown experiment 'lord3'"),
 }
 

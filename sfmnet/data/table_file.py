@@ -141,19 +141,21 @@ IMPLAUSIBLE = 1e15
 
 def check_finite(values: np.ndarray, names: list[str], path: Path, role: str) -> None:
     """Refuse NaN, infinite or implausibly large readings, saying how many and where."""
-    bad = ~np.isfinite(values)
-    if bad.any():
-        rows, cols = np.nonzero(bad)
-        where = ", ".join(f"line {r + 2} column {names[c]}" for r, c in zip(rows[:3], cols[:3]))
-        raise SfmnetError(
-            f"{path} has {int(bad.sum())} empty, NaN or infinite {role} values (first: {where}): "
-            "remove or repair those rows"
-        )
-    huge = np.abs(values) > IMPLAUSIBLE
-    if huge.any():
-        rows, cols = np.nonzero(huge)
-        where = ", ".join(f"line {r + 2} column {names[c]} ({values[r, c]:.3g})" for r, c in zip(rows[:3], cols[:3]))
-        raise SfmnetError(
-            f"{path} has {int(huge.sum())} {role} values beyond {IMPLAUSIBLE:.0e} (first: {where}): "
-            "a corrupt cell or a unit slip; repair those rows"
-        )
+    refuse_cells(~np.isfinite(values), values, names, path, f"empty, NaN or infinite {role} values", "remove or repair those rows", False)
+    refuse_cells(
+        np.abs(values) > IMPLAUSIBLE, values, names, path, f"{role} values beyond {IMPLAUSIBLE:.0e}",
+        "a corrupt cell or a unit slip; repair those rows", True,
+    )
+
+
+def refuse_cells(
+    bad: np.ndarray, values: np.ndarray, names: list[str], path: Path, what: str, remedy: str, show_value: bool
+) -> None:
+    """Raise naming how many cells ``bad`` marks and the first three (file line, column, value)."""
+    if not bad.any():
+        return
+    rows, cols = np.nonzero(bad)
+    where = ", ".join(
+        f"line {r + 2} column {names[c]}" + (f" ({values[r, c]:.3g})" if show_value else "") for r, c in zip(rows[:3], cols[:3])
+    )
+    raise SfmnetError(f"{path} has {int(bad.sum())} {what} (first: {where}): {remedy}")

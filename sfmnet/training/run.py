@@ -40,7 +40,7 @@ from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import motion_figure, spectrum_figure
 from sfmnet.eval.held_out import load_errors
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
-from sfmnet.io import write_json_atomic
+from sfmnet.io import save_figure_atomic, write_json_atomic
 from sfmnet.models.linear_calibrator import LinearCalibrator
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.cross_validation import (
@@ -178,9 +178,8 @@ def log_figures(
             figure = motion_figure(directions, 1.0, "g", f"{name}: recovered gravity directions")
         if figure is not None:
             figures["motion"] = figure
-    (run_dir / "figures").mkdir(exist_ok=True)
     for tag, figure in figures.items():
-        figure.savefig(run_dir / "figures" / f"{name}_{tag}.png", dpi=110)
+        save_figure_atomic(figure, run_dir / "figures" / f"{name}_{tag}.png")
         if logger.experiment is not None:
             logger.experiment.add_figure(f"{name}/{tag}", figure, global_step=step, close=False)
         plt.close(figure)
@@ -251,8 +250,7 @@ def cross_validate(
         results[name].metrics.update({f"lopo/{key}": value for key, value in summary.items()})
     write_folds(folds, run_dir / "leave_one_group_out.csv")
     figure = folds_figure(folds, data.load_unit)
-    (run_dir / "figures").mkdir(exist_ok=True)
-    figure.savefig(run_dir / "figures" / "leave_one_group_out.png", dpi=110)
+    save_figure_atomic(figure, run_dir / "figures" / "leave_one_group_out.png")
     logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version="leave_one_group_out")
     logger.experiment.add_figure("leave_one_group_out", figure, close=True)
     logger.experiment.flush()

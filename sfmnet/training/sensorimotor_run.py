@@ -27,7 +27,12 @@ from omegaconf import DictConfig
 from sfmnet.data.sensorimotor import SensorimotorData, SensorimotorDataModule
 from sfmnet.eval.command_metrics import command_metrics
 from sfmnet.eval.figures import commands_figure, spectrum_figure
-from sfmnet.io import write_csv_atomic, write_json_atomic
+from sfmnet.io import (
+    save_figure_atomic,
+    save_npz_atomic,
+    write_csv_atomic,
+    write_json_atomic,
+)
 from sfmnet.linalg.factorisation import truncated_svd_factors
 from sfmnet.linalg.subspace import principal_angles_deg
 from sfmnet.models.sensorimotor_learner import SensorimotorLearner
@@ -108,9 +113,8 @@ def log_figures(
         ),
         "spectrum": spectrum_figure(model.singular_values, model.rank, f"{name}: singular values, chosen rank {model.rank}"),
     }
-    (run_dir / "figures").mkdir(exist_ok=True)
     for tag, figure in figures.items():
-        figure.savefig(run_dir / "figures" / f"{name}_{tag}.png", dpi=110)
+        save_figure_atomic(figure, run_dir / "figures" / f"{name}_{tag}.png")
         logger.experiment.add_figure(f"{name}/{tag}", figure, global_step=step, close=False)
         plt.close(figure)
     logger.experiment.flush()
@@ -119,10 +123,8 @@ def log_figures(
 def save_learner(model: SensorimotorLearner, data: SensorimotorData, path: Path) -> None:
     """``columns``, ``mean`` and ``scale`` (standardisation), ``basis`` (``k x m``, standardised units),
     ``centre`` (``m``), ``sensor_count`` and the singular values of the standardised training vectors."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp.npz")
-    np.savez(
-        temporary,
+    save_npz_atomic(
+        path,
         columns=np.array(data.columns),
         mean=model.column_mean.numpy(),
         scale=model.column_scale.numpy(),
@@ -131,7 +133,6 @@ def save_learner(model: SensorimotorLearner, data: SensorimotorData, path: Path)
         sensor_count=np.array(model.sensor_count),
         singular_values=model.singular_values.numpy(),
     )
-    temporary.replace(path)
 
 
 def write_predictions(model: SensorimotorLearner, data: SensorimotorData, path: Path) -> None:

@@ -18,7 +18,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig
 
 from sfmnet.data.row_file import RowFileDataModule
-from sfmnet.io import write_json_atomic
+from sfmnet.io import save_npz_atomic, write_json_atomic
 from sfmnet.models.streaming_pca import StreamingPCA
 from sfmnet.training.fitting import fit
 from sfmnet.training.progress import ProgressBar
@@ -55,12 +55,10 @@ def train_streaming(cfg: DictConfig, datamodule: RowFileDataModule, run_dir: Pat
 
 
 def save_pca(model: StreamingPCA, columns: list[str], path: Path) -> None:
-    temporary = path.with_name(f".{path.name}.tmp.npz")
-    np.savez(
-        temporary,
+    save_npz_atomic(
+        path,
         mean=model.mean.detach().numpy(),
         components=model.components.detach().numpy(),
         singular_values=model.singular_values.numpy(),
         columns=np.array(columns),
     )
-    temporary.replace(path)
