@@ -6,11 +6,12 @@ For each SNR (``F |s| / noise``, i.e. ``1 / data.noise_fraction``) and sensor (2
 Error: the shape ``S`` (after the best orthogonal alignment to the truth when no load fixes the
 frame). Bound: the trace of the Cramer-Rao bound of ``S`` at the true loads and noise (the
 rotation gauge removed by the pseudo-inverse when no load fixes the frame). Printed:
-``sqrt(mean error^2 / mean bound)`` for the closed form and for the two refinements, each run
-by the trainer from the closed form: the alternation (the default) and the penalised loss
-with L-BFGS (``model.refinement=penalty``, conf/optimizer/lbfgs.yaml). Run by hand:
+``sqrt(mean error^2 / mean bound)`` for the closed form and for each refinement run by the
+trainer from it (``model.refinement``: the alternation, the penalised loss with L-BFGS, the
+marginal likelihood with L-BFGS, and ``auto``, the default, which picks one of the first and
+third by the closed form's SNR; conf/optimizer/lbfgs.yaml). Run by hand:
 
-    python bench/crb_ratio.py --trials 100 [--known-loads]
+    python bench/crb_ratio.py --trials 50 [--known-loads] [--refinements alternation marginal auto]
 """
 
 from __future__ import annotations
@@ -43,9 +44,12 @@ def error2(shape: torch.Tensor, truth: torch.Tensor, align: bool) -> float:
     return float((shape - truth).pow(2).sum())
 
 
+REFINEMENTS = ("alternation", "penalty", "marginal", "auto")
+
+
 def trial(
-    module_cls, kwargs: dict, known_loads: int, snr: float, seed: int, optimizer_cfg
-) -> tuple[float, float, float, float]:
+    module_cls, kwargs: dict, known_loads: int, snr: float, seed: int, optimizer_cfg, refinements: list[str]
+) -> tuple[float, ...]:
     datamodule = module_cls(
         noise_fraction=1 / snr, known_loads=known_loads, mirror_hint=False, offset_scale=0.0, seed=seed, errors={"angle_error_deg": 0.0}, **kwargs
     )
@@ -60,7 +64,7 @@ def trial(
     information = shape_information(truth, recording.true_loads[known], unknown / magnitude, maps, estimate_offset=False)
     bound = noise_std**2 * float(torch.linalg.pinv(information, hermitian=True).diagonal().sum())
     errors = []
-    for refinement in ("alternation", "penalty"):
+    for refinement in refinements:
         model = ShapeFromMotion(estimate_offset=False, refinement=refinement)
         model.initialise(recording)
         closed_form = error2(model.physical_shape(), truth, align=known_loads == 0)
@@ -78,6 +82,7 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--snr", type=float, nargs="+", default=[100, 20, 5, 2])
     parser.add_argument("--known-loads", action="store_true", help="add n exact known loads (else none, as NOTES 5)")
+    parser.add_argument("--refinements", nargs="+", default=list(REFINEMENTS), choices=REFINEMENTS)
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     import logging
@@ -85,16 +90,16 @@ def main() -> None:
     logging.getLogger("lightning.pytorch").setLevel(logging.ERROR)
     torch.set_num_threads(1)
     optimizer_cfg = OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml")
-    print("| sensor | SNR | closed form / CRB | alternation / CRB | penalty (L-BFGS) / CRB |")
-    print("|---|---|---|---|---|")
+    print("| sensor | SNR | closed form / CRB | " + " | ".join(f"{r} / CRB" for r in args.refinements) + " |")
+    print("|---|---|" + "---|" * (len(args.refinements) + 1))
     for name, (module_cls, kwargs, rank) in SENSORS.items():
         known = rank if args.known_loads else 0
         for snr in args.snr:
             results = torch.tensor(
-                [trial(module_cls, kwargs, known, snr, seed, optimizer_cfg) for seed in range(args.trials)]
+                [trial(module_cls, kwargs, known, snr, seed, optimizer_cfg, args.refinements) for seed in range(args.trials)]
             )
-            closed, alternation, penalty, bound = results.mean(dim=0)
-            ratios = " | ".join(f"{float((e / bound).sqrt()):.2f}" for e in (closed, alternation, penalty))
+            *errors, bound = results.mean(dim=0)
+            ratios = " | ".join(f"{float((e / bound).sqrt()):.2f}" for e in errors)
             print(f"| {name} | {snr:g} | {ratios} |", flush=True)
 
 

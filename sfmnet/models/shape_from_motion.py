@@ -18,11 +18,16 @@ from sfmnet.linalg.factorisation import (
 )
 from sfmnet.linalg.frame import frame_rotation
 from sfmnet.linalg.least_squares import least_squares_shape
+from sfmnet.linalg.marginal import direction_grid
 from sfmnet.linalg.motion import constrained_motion
-from sfmnet.models.linear_calibrator import Batch, LinearCalibrator
+from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, dense_parameter
 from sfmnet.models.losses import metric_constraint_loss, reconstruction_loss
 
-REFINEMENTS = ("alternation", "penalty")
+REFINEMENTS = ("auto", "alternation", "penalty", "marginal")
+# Below this signal-to-noise ratio (F |s| / noise, from the closed form) "auto" integrates the
+# directions out (marginal); above it the alternation is at the Cramer-Rao bound already and a
+# grid fine enough for the marginal would be costly (README, "Error against the Cramer-Rao bound").
+MARGINAL_BELOW_SNR = 50.0
 
 
 class ShapeFromMotion(LinearCalibrator):
@@ -50,18 +55,24 @@ class ShapeFromMotion(LinearCalibrator):
 
     Refinement, in the trainer's steps:
 
-    - ``"alternation"`` (default): NOTES 5's alternation, ``u_j <- normalize(z_j pinv(D S))``
+    - ``"alternation"``: NOTES 5's alternation, ``u_j <- normalize(z_j pinv(D S))``
       then ``[S; o] <- lstsq([M 1], Z)`` (:meth:`alternate`), the motion always exactly on
       the constraint. At low SNR it stays far closer to the Cramer-Rao bound than the exact
       penalised minimum, whose per-sample directions are incidental parameters that bias
       ``S`` (README, "Error against the Cramer-Rao bound").
     - ``"penalty"``: the trainer's optimiser on the loss above with each ``u_j`` its exact argmin.
+    - ``"marginal"``: the optimiser on the negative log marginal likelihood, each unknown
+      direction integrated over a uniform grid (:meth:`marginal_loss`), the noise level learnt
+      with it: no per-sample parameters, so no incidental-parameter bias; at the bound at low SNR.
+    - ``"auto"`` (default): ``"marginal"`` below ``MARGINAL_BELOW_SNR`` as estimated from the
+      closed form, else ``"alternation"``.
 
     Args:
         rank: ``n``, the number of load axes (2, 3, 6, ...); None takes it from the data.
         metric_weight: weight of the metric-constraint loss (0: unconstrained).
         estimate_offset: learn channel offsets (ellipsoid closed form, NOTES 4); else tared readings.
-        refinement: ``"alternation"`` or ``"penalty"`` (see above).
+        refinement: ``"auto"``, ``"alternation"``, ``"penalty"`` or ``"marginal"`` (see above).
+        marginal_grid: directions in the marginal's grid (default 256 on a circle, 2000 on a sphere).
         alternation_steps: alternation rounds per training step (full batches only).
     """
 
@@ -73,8 +84,9 @@ class ShapeFromMotion(LinearCalibrator):
         rank: int | None = None,
         metric_weight: float = 1000.0,
         estimate_offset: bool = True,
-        refinement: str = "alternation",
+        refinement: str = "auto",
         alternation_steps: int = 50,
+        marginal_grid: int | None = None,
     ) -> None:
         super().__init__(estimate_offset=estimate_offset)
         if refinement not in REFINEMENTS:
@@ -83,6 +95,9 @@ class ShapeFromMotion(LinearCalibrator):
         self.metric_weight = metric_weight
         self.refinement = refinement
         self.alternation_steps = alternation_steps
+        self.marginal_grid = marginal_grid
+        self.register_buffer("grid", None)
+        self.register_parameter("log_noise", None)
         self.register_buffer("direction_maps", None)
         self.register_buffer("row_configuration", None)
 
@@ -93,7 +108,7 @@ class ShapeFromMotion(LinearCalibrator):
     @property
     def alternating(self) -> bool:
         """Refined by :meth:`alternate` in the trainer's steps rather than by the optimiser."""
-        return self.refinement == "alternation"
+        return self.refinement in ("alternation", "auto")
 
     def initialise(self, recording: CalibrationRecording) -> None:
         self.rank = self.rank or recording.rank
@@ -112,6 +127,51 @@ class ShapeFromMotion(LinearCalibrator):
                 self.directions(recording.readings / self.reading_scale, recording.row_configuration, 0.0), 1.0
             )
         self.orient(recording)
+        if self.refinement == "auto":
+            self.snr = self.closed_form_snr(recording) if self.constrained else float("inf")
+            self.refinement = "marginal" if self.snr < MARGINAL_BELOW_SNR else "alternation"
+        if self.refinement == "marginal":
+            self.start_marginal(recording)
+
+    def closed_form_snr(self, recording: CalibrationRecording) -> float:
+        """``F |s| / noise``: the mean channel sensitivity at the load magnitude over the residual noise."""
+        residual = self.fitted_residuals(recording, self.fitted_loads(recording))
+        signal = self.physical_shape().norm(dim=0).mean() * self.load_scale.max()
+        return float(signal / residual.pow(2).mean().sqrt())
+
+    def start_marginal(self, recording: CalibrationRecording) -> None:
+        """The direction grid and the noise level (from the closed form's residuals) of the marginal likelihood."""
+        if not self.constrained:
+            raise SfmnetError("model.refinement=marginal integrates over directions on the sphere: it needs metric_weight > 0")
+        d = self.direction_maps.shape[1]
+        self.grid = direction_grid(d, self.marginal_grid or (256 if d == 2 else 2000))
+        residual = self.fitted_residuals(recording, self.fitted_loads(recording)) / self.reading_scale
+        self.log_noise = dense_parameter(residual.pow(2).mean().sqrt().log())
+
+    def marginal_loss(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """Negative log marginal likelihood per row, each unknown direction integrated over the uniform grid.
+
+        ``-log p(z_j) = -logsumexp_k(-|z_j - o - u_k D_c S|^2 / 2 s^2) + log K + p log s`` (unknown rows),
+        ``|z_k - f_k S - o|^2 / 2 s^2 + p log s`` (known rows), constants dropped. Unlike the joint
+        maximum likelihood it has no per-sample direction parameters, so no incidental-parameter bias.
+        """
+        index, readings, loads = batch
+        centred = readings / self.reading_scale - self.offset
+        loads = loads / self.load_scale
+        unknown = torch.isnan(loads).any(dim=1)
+        variance = torch.exp(2 * self.log_noise)
+        p = centred.shape[1]
+        known_residual = centred[~unknown] - loads[~unknown] @ self.shape
+        total = (known_residual.pow(2).sum(dim=1) / (2 * variance)).sum()
+        configuration = self.row_configuration[index]
+        for c in configuration[unknown].unique().tolist():
+            rows = centred[unknown & (configuration == c)]
+            predictions = self.grid @ (self.direction_maps[c] @ self.shape)
+            distance2 = rows.pow(2).sum(dim=1, keepdim=True) - 2 * rows @ predictions.T + predictions.pow(2).sum(dim=1)
+            total = total - torch.logsumexp(-distance2 / (2 * variance), dim=1).sum()
+        total = total + len(centred) * p * self.log_noise
+        loss = total / len(centred)
+        return {"marginal_nll": loss, "noise": torch.exp(self.log_noise).detach(), "loss": loss}
 
     def start_from_closed_form(self, recording: CalibrationRecording) -> None:
         """The paper's closed form for one mass: truncated SVD, then the metric constraint (eqs. 7-11)."""
@@ -180,10 +240,10 @@ class ShapeFromMotion(LinearCalibrator):
 
     def row_directions(self, readings: torch.Tensor, configuration: torch.Tensor) -> torch.Tensor:
         """Unknown rows' directions as the refinement uses them: normalised projections (alternation) or the penalty's argmin."""
-        if self.refinement == "alternation":
-            directions = self.directions(readings, configuration, 0.0)
-            return directions / directions.norm(dim=1, keepdim=True)
-        return self.directions(readings, configuration, self.metric_weight)
+        if self.refinement == "penalty":
+            return self.directions(readings, configuration, self.metric_weight)
+        directions = self.directions(readings, configuration, 0.0)
+        return directions / directions.norm(dim=1, keepdim=True)
 
     def batch_motion(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Dimensionless readings, motion (``b x n``), directions (``b x d``, zero on known rows) and the unknown-row mask."""
@@ -202,6 +262,8 @@ class ShapeFromMotion(LinearCalibrator):
         return readings, motion, directions, unknown
 
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
+        if self.refinement == "marginal":
+            return self.marginal_loss(batch)
         readings, motion, directions, unknown = self.batch_motion(batch)
         terms = {
             "reconstruction": reconstruction_loss(readings, motion, self.shape, self.offset, unknown),

@@ -55,6 +55,8 @@ class LearnerModule(L.LightningModule):
     def setup(self, stage: str) -> None:
         if not self.model.is_initialised:
             self.model.initialise(self.recording)
+        # A model may choose its refinement from the data ("auto"): read it once initialised.
+        self.automatic_optimization = not (getattr(self.model, "alternating", False) or self.streaming)
 
     def configure_optimizers(self) -> torch.optim.Optimizer | None:
         if not self.automatic_optimization:
