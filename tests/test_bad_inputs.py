@@ -25,6 +25,7 @@ from sfmnet.data.sensorimotor_csv import SensorimotorCsvDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
 from tests.conftest import REPO, compose_config, write_session
+from tests.test_csv_and_apply import set_cell
 
 Action = Callable[[], object]
 
@@ -44,13 +45,6 @@ def calibrate_file(tmp_path: Path, text: str, name: str = "session.csv") -> Acti
     path.write_text(text)
     cfg = compose_config(["experiment=calibrate_csv", f"data.path={path}", "data.magnitude=9.81"])
     return lambda: train(cfg, tmp_path / "run")
-
-
-def set_cell(line: int, column: int, value: str):
-    def edit(rows: list[list[str]]) -> None:
-        rows[line - 1][column] = value
-
-    return edit
 
 
 def rename_column(column: int, name: str):

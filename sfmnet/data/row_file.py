@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import lightning as L
@@ -24,23 +24,6 @@ from sfmnet.errors import SfmnetError
 
 SHIFT_ROWS = 10_000
 BLOCK_BYTES = 32 * 2**20
-
-
-@dataclass
-class RowData:
-    """A row matrix on disk: ``matrix`` (``f x p`` memory map), ``columns``, and ``shift`` (``p``, first rows' mean).
-
-    The loader's blocks arrive minus ``shift`` (see :class:`BlockDataset`).
-    """
-
-    matrix: np.ndarray
-    columns: list[str]
-    shift: torch.Tensor
-    path: Path = field(default=Path())
-
-    @property
-    def recordings(self) -> dict[str, RowData]:
-        return {"rows": self}
 
 
 @dataclass(frozen=True)
@@ -65,6 +48,30 @@ def npy_layout(path: Path) -> NpyLayout:
             "save a C-order 2-D array (np.save of a row matrix)"
         )
     return NpyLayout(path, offset, dtype, shape)
+
+
+def mapped_rows(layout: NpyLayout, start: int, count: int) -> np.memmap:
+    """Rows ``[start, start + count)`` through a memory map of just those rows."""
+    p = layout.shape[1]
+    return np.memmap(
+        layout.path, dtype=layout.dtype, mode="r", shape=(count, p), offset=layout.offset + start * p * layout.dtype.itemsize
+    )
+
+
+@dataclass
+class RowData:
+    """A row matrix on disk: where it lies (``layout``, ``f x p``), ``columns``, and ``shift`` (``p``, first rows' mean).
+
+    The loader's blocks arrive minus ``shift`` (see :class:`BlockDataset`).
+    """
+
+    layout: NpyLayout
+    columns: list[str]
+    shift: torch.Tensor
+
+    @property
+    def recordings(self) -> dict[str, RowData]:
+        return {"rows": self}
 
 
 
@@ -96,10 +103,7 @@ class BlockDataset(Dataset):
             return torch.zeros(0, p, dtype=torch.float64)
         start = index * self.block_rows
         count = min(self.block_rows, rows - start)
-        mapped = np.memmap(
-            self.layout.path, dtype=self.layout.dtype, mode="r", shape=(count, p),
-            offset=self.layout.offset + start * p * self.layout.dtype.itemsize,
-        )
+        mapped = mapped_rows(self.layout, start, count)
         if len(self.buffers) < self.RING:
             self.buffers.append(np.empty((self.block_rows, p)))
         buffer = self.buffers[self.turn % self.RING][:count]
@@ -161,24 +165,25 @@ class RowFileDataModule(L.LightningDataModule):
             raise SfmnetError(f"{self.path} is not a file: check data.path (a .npy or .csv of rows)")
         source = self.path if self.path.suffix == ".npy" else csv_to_npy(self.path, self.cache_dir)
         try:
-            matrix = np.load(source, mmap_mode="r", allow_pickle=False)
-            self.layout = npy_layout(source)
+            layout = npy_layout(source)
         except (ValueError, OSError) as error:
             raise SfmnetError(f"{source} cannot be read as .npy: {error}") from None
-        if matrix.ndim != 2 or matrix.shape[0] < 2 or not np.issubdtype(matrix.dtype, np.number):
-            raise SfmnetError(f"{source} holds a {matrix.dtype} array of shape {matrix.shape}: give a 2-D numeric array, one row per sample")
-        columns = self.columns or (csv_header(self.path) if self.path.suffix != ".npy" else [f"c{i}" for i in range(matrix.shape[1])])
-        if len(columns) != matrix.shape[1]:
-            raise SfmnetError(f"{len(columns)} names in data.columns for {matrix.shape[1]} columns in {self.path}")
-        shift = torch.from_numpy(np.asarray(matrix[:SHIFT_ROWS], dtype=np.float64).mean(axis=0))
+        rows, p = layout.shape
+        if rows < 2 or not np.issubdtype(layout.dtype, np.number):
+            raise SfmnetError(f"{source} holds a {layout.dtype} array of shape {layout.shape}: give a 2-D numeric array, one row per sample")
+        columns = self.columns or (csv_header(self.path) if self.path.suffix != ".npy" else [f"c{i}" for i in range(p)])
+        if len(columns) != p:
+            raise SfmnetError(f"{len(columns)} names in data.columns for {p} columns in {self.path}")
+        shift = torch.from_numpy(np.asarray(mapped_rows(layout, 0, min(rows, SHIFT_ROWS)), dtype=np.float64).mean(axis=0))
         if not torch.isfinite(shift).all():
             raise SfmnetError(f"{self.path} has NaN or infinite values in its first rows: repair the file")
-        self.data = RowData(matrix=matrix, columns=list(columns), shift=shift, path=self.path)
+        self.data = RowData(layout=layout, columns=list(columns), shift=shift)
 
     def train_dataloader(self) -> dict[str, DataLoader]:
         assert self.data is not None, "setup() runs before the loaders"
-        rows = self.block_rows or max(1, BLOCK_BYTES // (8 * self.layout.shape[1]))
-        dataset = BlockDataset(self.layout, rows, self.data.shift.numpy())
+        layout = self.data.layout
+        rows = self.block_rows or max(1, BLOCK_BYTES // (8 * layout.shape[1]))
+        dataset = BlockDataset(layout, rows, self.data.shift.numpy())
         return {self.recording: DataLoader(dataset, batch_size=None, sampler=ShardSampler(len(dataset)))}
 
 

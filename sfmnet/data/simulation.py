@@ -12,6 +12,7 @@ import torch
 
 from sfmnet.calibration import calibration_matrix
 from sfmnet.data.recording import CalibrationRecording, EvaluationSweep, SensorTruth
+from sfmnet.linalg.directions import direction_grid
 from sfmnet.linalg.frame import MirrorHint
 
 DTYPE = torch.float64
@@ -64,21 +65,6 @@ def random_directions(count: int, dims: int, generator: torch.Generator) -> torc
     """``count x dims`` unit vectors, uniform on the circle or sphere."""
     vectors = torch.randn(count, dims, generator=generator, dtype=DTYPE)
     return vectors / vectors.norm(dim=1, keepdim=True)
-
-
-def sweep_directions(count: int, dims: int) -> torch.Tensor:
-    """``count x dims`` unit vectors in the order of one continuous turn.
-
-    A full circle for ``dims == 2``; a Fibonacci spiral from pole to pole for ``dims == 3``.
-    """
-    step = torch.arange(count, dtype=DTYPE)
-    if dims == 2:
-        angle = 2 * math.pi * step / count
-        return torch.stack([angle.cos(), angle.sin()], dim=1)
-    z = 1 - 2 * (step + 0.5) / count
-    radius = (1 - z**2).sqrt()
-    azimuth = math.pi * (3 - math.sqrt(5)) * step
-    return torch.stack([radius * azimuth.cos(), radius * azimuth.sin(), z], dim=1)
 
 
 def perturb_directions(directions: torch.Tensor, std_rad: float, generator: torch.Generator) -> torch.Tensor:
@@ -185,7 +171,7 @@ def least_squares_recording(
     """
     n = sensor.shape.shape[0]
     count = max(1, round(360 / angle_step_deg))
-    directions = sweep_directions(count, n).repeat(len(masses), 1)
+    directions = direction_grid(n, count).repeat(len(masses), 1)
     labelled = torch.tensor(list(masses), dtype=DTYPE).repeat_interleave(count)
     actual = torch.tensor(list(masses.values()), dtype=DTYPE).repeat_interleave(count)
     loads = applied_loads(directions, actual, errors, generator, set_directions=True)
@@ -198,7 +184,7 @@ def evaluation_sweeps(
 ) -> list[EvaluationSweep]:
     """Each test mass turned once round (exact loads, noisy readings): the reference for accuracy and precision."""
     n = sensor.shape.shape[0]
-    directions = sweep_directions(samples_per_turn, n)
+    directions = direction_grid(n, samples_per_turn)
     sweeps = []
     for mass in masses:
         loads = directions * mass

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 
 from sfmnet.data.recording import CalibrationRecording
+from sfmnet.linalg.subspace import masked_projection
 from sfmnet.models.sensorimotor_learner import SensorimotorLearner
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 
@@ -55,5 +56,5 @@ class EigenspaceLearner(SensorimotorLearner):
 
     def reconstruct(self, standardised: torch.Tensor) -> torch.Tensor:
         basis = self.basis()
-        coefficients = torch.linalg.lstsq(basis.T, (standardised - self.centre()).T).solution.T
-        return coefficients @ basis + self.centre()
+        every_column = torch.ones(basis.shape[1], dtype=torch.bool)
+        return masked_projection(basis, standardised - self.centre(), every_column) @ basis + self.centre()

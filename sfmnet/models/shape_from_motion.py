@@ -8,6 +8,7 @@ import torch
 
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.errors import SfmnetError
+from sfmnet.linalg.directions import direction_grid
 from sfmnet.linalg.factorisation import (
     fit_ellipsoid,
     metric_gram,
@@ -18,7 +19,6 @@ from sfmnet.linalg.factorisation import (
 )
 from sfmnet.linalg.frame import frame_rotation
 from sfmnet.linalg.least_squares import least_squares_shape
-from sfmnet.linalg.marginal import direction_grid
 from sfmnet.linalg.motion import constrained_motion
 from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, dense_parameter
 from sfmnet.models.losses import metric_constraint_loss, reconstruction_loss
@@ -127,26 +127,25 @@ class ShapeFromMotion(LinearCalibrator):
                 self.directions(recording.readings / self.reading_scale, recording.row_configuration, 0.0), 1.0
             )
         self.orient(recording)
+        if self.refinement in ("auto", "marginal") and self.constrained:
+            noise = self.closed_form_noise(recording)
+            self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":
-            self.snr = self.closed_form_snr(recording) if self.constrained else float("inf")
-            self.refinement = "marginal" if self.snr < MARGINAL_BELOW_SNR else "alternation"
+            self.refinement = "marginal" if self.constrained and self.snr < MARGINAL_BELOW_SNR else "alternation"
         if self.refinement == "marginal":
-            self.start_marginal(recording)
+            self.start_marginal(noise)
 
-    def closed_form_snr(self, recording: CalibrationRecording) -> float:
-        """``F |s| / noise``: the mean channel sensitivity at the load magnitude over the residual noise."""
-        residual = self.fitted_residuals(recording, self.fitted_loads(recording))
-        signal = self.physical_shape().norm(dim=0).mean() * self.load_scale.max()
-        return float(signal / residual.pow(2).mean().sqrt())
+    def closed_form_noise(self, recording: CalibrationRecording) -> float:
+        """RMS of the closed form's residuals, raw units: the noise its SNR (``F |s| / noise``) is judged by."""
+        return float(self.fitted_residuals(recording, self.fitted_loads(recording)).pow(2).mean().sqrt())
 
-    def start_marginal(self, recording: CalibrationRecording) -> None:
-        """The direction grid and the noise level (from the closed form's residuals) of the marginal likelihood."""
+    def start_marginal(self, noise: float) -> None:
+        """The direction grid of the marginal likelihood, and its noise level started at ``noise`` (raw units)."""
         if not self.constrained:
             raise SfmnetError("model.refinement=marginal integrates over directions on the sphere: it needs metric_weight > 0")
         d = self.direction_maps.shape[1]
         self.grid = direction_grid(d, self.marginal_grid or (256 if d == 2 else 2000))
-        residual = self.fitted_residuals(recording, self.fitted_loads(recording)) / self.reading_scale
-        self.log_noise = dense_parameter(residual.pow(2).mean().sqrt().log())
+        self.log_noise = dense_parameter((torch.as_tensor(noise, dtype=self.shape.dtype) / self.reading_scale).log())
 
     def marginal_loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Negative log marginal likelihood per row, each unknown direction integrated over the uniform grid.

@@ -40,7 +40,7 @@ class LearnerModule(L.LightningModule):
         self.optimizer_factory = optimizer
         # Statistics models add each batch to sums and solve once the pass is complete.
         self.streaming = getattr(model, "streaming", False)
-        self.automatic_optimization = not (getattr(model, "alternating", False) or self.streaming)
+        self.choose_optimisation()
 
     @property
     def recording(self) -> CalibrationRecording | SensorimotorData:
@@ -55,7 +55,11 @@ class LearnerModule(L.LightningModule):
     def setup(self, stage: str) -> None:
         if not self.model.is_initialised:
             self.model.initialise(self.recording)
-        # A model may choose its refinement from the data ("auto"): read it once initialised.
+        # A model may choose its refinement from the data ("auto"): read it again once initialised.
+        self.choose_optimisation()
+
+    def choose_optimisation(self) -> None:
+        """The optimiser for models trained on their loss; manual steps for alternating and streaming ones."""
         self.automatic_optimization = not (getattr(self.model, "alternating", False) or self.streaming)
 
     def configure_optimizers(self) -> torch.optim.Optimizer | None:

@@ -14,6 +14,7 @@ Run directory layout::
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +36,7 @@ from sfmnet.io import (
 )
 from sfmnet.linalg.factorisation import truncated_svd_factors
 from sfmnet.linalg.subspace import principal_angles_deg
-from sfmnet.models.sensorimotor_learner import SensorimotorLearner
+from sfmnet.models.sensorimotor_learner import CommandReading, SensorimotorLearner
 from sfmnet.training.fitting import fit
 from sfmnet.training.progress import ProgressBar
 
@@ -50,24 +51,32 @@ def train_sensorimotor(cfg: DictConfig, datamodule: SensorimotorDataModule, run_
     results = {name: fit_and_evaluate(name, model, cfg, datamodule, run_dir) for name, model in models.items()}
 
     save_learner(main, data, run_dir / "learner.npz")
-    write_predictions(main, data, run_dir / "predictions.csv")
-    metrics = dict(results[main.name])
+    write_predictions(data, results[main.name].readings, run_dir / "predictions.csv")
+    metrics = dict(results[main.name].metrics)
     for name, model in models.items():
         if name != main.name:
             save_learner(model, data, run_dir / "baselines" / name / "learner.npz")
-            metrics.update({f"{name}/{key}": value for key, value in results[name].items()})
+            metrics.update({f"{name}/{key}": value for key, value in results[name].metrics.items()})
     write_json_atomic(run_dir / "metrics.json", metrics)
 
     print(f"\nrun directory: {run_dir}")
     for name, result in results.items():
-        print(headline(name, result, data))
+        print(headline(name, result.metrics, data))
     print(f"inspect: tensorboard --logdir {run_dir}")
     return metrics
 
 
+@dataclass(frozen=True)
+class Evaluation:
+    """A fitted learner's figures, and what it read on each held-out run (for the figure and predictions.csv)."""
+
+    metrics: dict[str, float]
+    readings: list[CommandReading]
+
+
 def fit_and_evaluate(
     name: str, model: SensorimotorLearner, cfg: DictConfig, datamodule: SensorimotorDataModule, run_dir: Path
-) -> dict[str, float]:
+) -> Evaluation:
     data = datamodule.data
     logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version=name, default_hp_metric=False)
     checkpoint = ModelCheckpoint(dirpath=run_dir / "checkpoints" / name, save_last=True, save_top_k=0)
@@ -76,9 +85,13 @@ def fit_and_evaluate(
     trainer = fit(model, cfg, datamodule, logger=logger, callbacks=callbacks, default_root_dir=str(run_dir))
     seconds = time.perf_counter() - started
 
-    truth = np.concatenate([e.commands for e in data.test])
-    reading = model.read_commands(torch.from_numpy(np.concatenate([e.sensors for e in data.test])))
-    metrics = command_metrics(data.commands, truth, reading.commands, reading.confidence)
+    readings = [model.read_commands(torch.from_numpy(episode.sensors)) for episode in data.test]
+    metrics = command_metrics(
+        data.commands,
+        np.concatenate([e.commands for e in data.test]),
+        np.concatenate([r.commands for r in readings]),
+        np.concatenate([r.confidence for r in readings]),
+    )
     metrics.update(
         {
             "rank": float(model.rank),
@@ -94,15 +107,21 @@ def fit_and_evaluate(
         # Against the principal subspace of the same standardised data, for the comparison table.
         reference = truncated_svd_factors(model.standardise(data.vectors(data.train)), model.rank, centre=True).shape
         metrics["subspace_angle_deg"] = float(principal_angles_deg(model.basis(), reference).max())
-    log_figures(name, model, data, run_dir, logger, trainer.global_step)
-    return metrics
+    log_figures(name, model, data, readings[0], run_dir, logger, trainer.global_step)
+    return Evaluation(metrics, readings)
 
 
 def log_figures(
-    name: str, model: SensorimotorLearner, data: SensorimotorData, run_dir: Path, logger: TensorBoardLogger, step: int
+    name: str,
+    model: SensorimotorLearner,
+    data: SensorimotorData,
+    reading: CommandReading,
+    run_dir: Path,
+    logger: TensorBoardLogger,
+    step: int,
 ) -> None:
+    """Fig. 6 on the first held-out run (``reading`` is the learner's reading of it) and the spectrum."""
     episode = data.test[0]
-    reading = model.read_commands(torch.from_numpy(episode.sensors))
     labels = [np.array(c.labels, dtype=object) for c in data.commands]
     human = np.stack([labels[i][episode.commands[:, i]] for i in range(len(labels))], axis=1)
     learned = np.stack([labels[i][reading.commands[:, i]] for i in range(len(labels))], axis=1)
@@ -135,11 +154,10 @@ def save_learner(model: SensorimotorLearner, data: SensorimotorData, path: Path)
     )
 
 
-def write_predictions(model: SensorimotorLearner, data: SensorimotorData, path: Path) -> None:
+def write_predictions(data: SensorimotorData, readings: list[CommandReading], path: Path) -> None:
     """Every held-out sample: run, step, each command's human and learnt label, and the confidence."""
     rows = []
-    for number, episode in enumerate(data.test):
-        reading = model.read_commands(torch.from_numpy(episode.sensors))
+    for number, (episode, reading) in enumerate(zip(data.test, readings)):
         for step in range(len(episode.sensors)):
             cells = [number, step]
             for i, command in enumerate(data.commands):

@@ -1,4 +1,4 @@
-"""Quadrature over unknown directions, for the marginal likelihood of shape from motion."""
+"""Unit directions spread evenly: the marginal likelihood's quadrature grid and the simulators' sweeps."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ import torch
 
 
 def direction_grid(dims: int, count: int) -> torch.Tensor:
-    """``count x dims`` unit vectors spread evenly: equal angles on the circle, a Fibonacci spiral on the sphere.
+    """``count x dims`` unit vectors spread evenly, in the order of one continuous turn.
 
-    Equal weights then approximate the uniform prior's integral over directions.
+    Equal angles round the circle; a Fibonacci spiral from pole to pole on the sphere. With
+    equal weights they approximate an integral over uniform directions.
     """
     step = torch.arange(count, dtype=torch.float64)
     if dims == 2:
