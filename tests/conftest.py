@@ -52,7 +52,7 @@ def write_session(path: Path, known_loads: int = 3, seed: int = 0, edit=None) ->
 
 def experiment_overrides(experiment: str, tmp_path: Path) -> list[str]:
     """What an experiment that reads the user's file needs: a simulated session written to disk."""
-    if experiment == "calibrate_csv":
+    if experiment in ("calibrate_csv", "calibrate_stream"):
         write_session(tmp_path / "session.csv")
         return [f"data.path={tmp_path / 'session.csv'}", "data.magnitude=9.81", "data.time_column=time"]
     if experiment == "pca":

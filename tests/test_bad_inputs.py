@@ -40,6 +40,15 @@ def calibrate(tmp_path: Path, *overrides: str, edit=None, known_loads: int = 3) 
     return lambda: train(cfg, tmp_path / "run")
 
 
+def stream(tmp_path: Path, *overrides: str, edit=None) -> Action:
+    """The same simulated session calibrated by streaming it (experiment=calibrate_stream)."""
+    return calibrate(tmp_path, "experiment=calibrate_stream", *overrides, edit=edit)
+
+
+def blank_last_load(rows: list[list[str]]) -> None:
+    rows[-1][9] = ""
+
+
 def calibrate_file(tmp_path: Path, text: str, name: str = "session.csv") -> Action:
     path = tmp_path / name
     path.write_text(text)
@@ -178,6 +187,16 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "n-1 known loads without the mirror bit": (lambda t: calibrate(t, known_loads=2), r"only up to a mirror image: set data.mirror_hint="),
     "non-existent path": (lambda t: (lambda: train(compose_config(["experiment=calibrate_csv", f"data.path={t / 'nope.csv'}", "data.magnitude=9.81"]), t / "run")), r"nope.csv does not exist: check data.path"),
     "unreadable file": (unreadable_npy, r"cannot be read as .npy"),
+    # train, a calibration streamed from its file (conf/data/calibration_rows.yaml)
+    "stream: partly known load": (lambda t: stream(t, edit=blank_last_load), r"data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"),
+    "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"data row 5 \(0-based\) has a NaN, empty or infinite channel cell"),
+    "stream: missing column": (lambda t: stream(t, "data.load_columns=[fx,fy,fzz]"), r"load column 'fzz' is not in .*session.csv"),
+    "stream: wrong magnitude": (lambda t: stream(t, "data.magnitude=12.0"), r"known load on data row \d+ \(0-based\) of .* has magnitude 9.81 but data.magnitude is 12"),
+    "stream: collinear motion": (lambda t: stream(t, edit=project_unknown_loads(1)), r"collinear"),
+    "stream: every load known": (lambda t: stream(t, "model.max_known_rows=2"), r"3 rows have known loads \(model.max_known_rows is 2\)"),
+    "stream: one pass": (lambda t: stream(t, "trainer.max_epochs=1"), r"needs two passes .* set trainer.max_epochs to 2 or more"),
+    "stream: in-memory model": (lambda t: stream(t, "model=shape_from_motion"), r"learns from a 'rotation' recording, which this data does not have"),
+    "stream: resume": (lambda t: (t / "last.ckpt").write_bytes(b"x") and stream(t, f"ckpt_path={t / 'last.ckpt'}"), r"cannot resume: drop ckpt_path"),
     # apply
     "missing calibration.json": (lambda t: apply_to(t, t / "none.json", "s0\n1\n"), r"calibration file .* does not exist"),
     "corrupt calibration.json": (corrupt_calibration, r"cannot be read as JSON"),

@@ -36,7 +36,7 @@ def test_moments_of_shards_add_up_and_survive_large_offsets():
     assert torch.allclose(whole.cross, parts.cross, rtol=1e-12)
     reference = z - z.mean(dim=0)
     assert torch.allclose(whole.centred_cross(), reference.T @ reference, rtol=1e-9)
-    components, singular = principal_subspace(whole, 3)
+    components, singular = principal_subspace(whole.centred_cross(), 3)
     assert torch.allclose(singular, torch.linalg.svdvals(reference)[:3], rtol=1e-10)
     assert torch.allclose(components @ components.T, torch.eye(3, dtype=torch.float64), atol=1e-12)
 
@@ -81,7 +81,7 @@ def test_csv_is_converted_once_and_reconverted_when_it_changes(tmp_path: Path):
     assert csv_to_npy(path, None) != first
     module = RowFileDataModule(str(path))
     module.setup()
-    assert module.data.columns == [f"s{i}" for i in range(6)]
+    assert module.data.channels == [f"s{i}" for i in range(6)]
 
 
 def test_bad_row_files(tmp_path: Path):

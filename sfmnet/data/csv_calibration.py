@@ -78,14 +78,6 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         self.group_column = group_column
         self.gravity = gravity
 
-    def load_magnitude(self) -> float:
-        if (self.magnitude is None) == (self.mass is None):
-            raise SfmnetError("give the calibration load as exactly one of data.magnitude (load units) or data.mass (kg)")
-        value = self.magnitude if self.magnitude is not None else self.mass * self.gravity
-        if not value > 0:
-            raise SfmnetError(f"the load magnitude must be positive, got {value}")
-        return float(value)
-
     def build(self) -> CalibrationData:
         table = read_table(self.path, self.columns)
         table.require(self.load_columns, "load")
@@ -128,7 +120,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 groups=groups,
             )
         else:
-            magnitude = self.load_magnitude()
+            magnitude = calibration_magnitude(self.magnitude, self.mass, self.gravity)
             self.check_known_magnitudes(loads, np.full(len(loads), magnitude))
             recording = CalibrationRecording(
                 readings=torch.from_numpy(readings),
@@ -143,17 +135,15 @@ class CsvCalibrationDataModule(CalibrationDataModule):
 
     def check_known_magnitudes(self, forces: np.ndarray, magnitudes: np.ndarray) -> None:
         """Known (force) loads must have their row's mass's magnitude: they are that mass in a known pose."""
-        known = ~np.isnan(forces).any(axis=1)
-        norms = np.linalg.norm(forces[known], axis=1)
-        off = np.abs(norms / magnitudes[known] - 1) > self.known_load_tolerance
-        if off.any():
-            first = int(np.argmax(off))
-            line = int(np.nonzero(known)[0][first]) + 2
+        known = np.nonzero(~np.isnan(forces).any(axis=1))[0]
+        off = first_magnitude_mismatch(forces[known], magnitudes[known], self.known_load_tolerance)
+        if off is not None:
             source = "its configuration's mass gives" if self.configuration_column else "data.magnitude is"
             raise SfmnetError(
-                f"the known load on line {line} of {self.path} has magnitude {norms[first]:.6g} but "
-                f"{source} {magnitudes[known][first]:.6g} ({100 * self.known_load_tolerance:g} % allowed): "
-                "the known loads must be the calibration mass; check the load columns, units and masses"
+                f"the known load on line {known[off] + 2} of {self.path} has magnitude "
+                f"{np.linalg.norm(forces[known[off]]):.6g} but {source} {magnitudes[known[off]]:.6g} "
+                f"({100 * self.known_load_tolerance:g} % allowed): the known loads must be the calibration mass; "
+                "check the load columns, units and masses"
             )
 
     def parse_configurations(self, table: Table) -> tuple[torch.Tensor, torch.Tensor]:
@@ -186,14 +176,34 @@ class CsvCalibrationDataModule(CalibrationDataModule):
     def parse_mirror_hint(self, loads: np.ndarray) -> MirrorHint | None:
         if self.mirror_hint is None:
             return None
-        hint = dict(self.mirror_hint)
-        if set(hint) != {"row", "axis", "sign"}:
-            raise SfmnetError("data.mirror_hint needs exactly row, axis and sign, e.g. {row: 17, axis: fz, sign: 1}")
-        axis = hint["axis"]
-        if axis not in self.load_columns:
-            raise SfmnetError(f"data.mirror_hint.axis '{axis}' is not one of the load columns {self.load_columns}")
+        row, axis, sign = mirror_hint_fields(self.mirror_hint, self.load_columns)
         unknown = np.isnan(loads).any(axis=1)
-        row = int(hint["row"])
         if not 0 <= row < len(loads) or not unknown[row]:
             raise SfmnetError(f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown")
-        return MirrorHint(sample=int(unknown[:row].sum()), axis=self.load_columns.index(axis), sign=int(hint["sign"]))
+        return MirrorHint(sample=int(unknown[:row].sum()), axis=axis, sign=sign)
+
+
+def calibration_magnitude(magnitude: float | None, mass: float | None, gravity: float) -> float:
+    """The calibration load's magnitude (load units) from exactly one of ``magnitude`` or ``mass`` (kg)."""
+    if (magnitude is None) == (mass is None):
+        raise SfmnetError("give the calibration load as exactly one of data.magnitude (load units) or data.mass (kg)")
+    value = magnitude if magnitude is not None else mass * gravity
+    if not value > 0:
+        raise SfmnetError(f"the load magnitude must be positive, got {value}")
+    return float(value)
+
+
+def first_magnitude_mismatch(forces: np.ndarray, magnitudes: np.ndarray, tolerance: float) -> int | None:
+    """The first of the known ``forces`` (``k x 3``) whose norm is off its ``magnitudes`` (``k``) by more than ``tolerance``."""
+    off = np.abs(np.linalg.norm(forces, axis=1) / magnitudes - 1) > tolerance
+    return int(np.argmax(off)) if off.any() else None
+
+
+def mirror_hint_fields(hint: dict, load_columns: list[str]) -> tuple[int, int, int]:
+    """``data.mirror_hint`` (``{row, axis: <load column>, sign}``) as (data row, axis index, sign)."""
+    hint = dict(hint)
+    if set(hint) != {"row", "axis", "sign"}:
+        raise SfmnetError("data.mirror_hint needs exactly row, axis and sign, e.g. {row: 17, axis: fz, sign: 1}")
+    if hint["axis"] not in load_columns:
+        raise SfmnetError(f"data.mirror_hint.axis '{hint['axis']}' is not one of the load columns {load_columns}")
+    return int(hint["row"]), load_columns.index(hint["axis"]), int(hint["sign"])

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import lightning as L
 import numpy as np
@@ -58,25 +59,53 @@ def mapped_rows(layout: NpyLayout, start: int, count: int) -> np.memmap:
     )
 
 
+class RowBlock(NamedTuple):
+    """One training step's rows: ``start`` (the first row's index in the file), ``readings``
+    (``b x p`` float64, the channel columns minus the data's shift) and ``loads`` (``b x n``
+    float64, NaN where unknown; ``b x 0`` without load columns)."""
+
+    start: int
+    readings: torch.Tensor
+    loads: torch.Tensor
+
+
 @dataclass
 class RowData:
-    """A row matrix on disk: where it lies (``layout``, ``f x p``), ``columns``, and ``shift`` (``p``, first rows' mean).
-
-    The loader's blocks arrive minus ``shift`` (see :class:`BlockDataset`).
+    """A row matrix on disk: where it lies (``layout``, ``f x columns``), the ``channels`` the statistics
+    are of (``p`` names, at ``channel_index``), their ``shift`` (``p``, the first rows' mean) and any
+    ``load_columns`` (at ``load_index``). The loader's blocks arrive as :class:`RowBlock`.
     """
 
     layout: NpyLayout
-    columns: list[str]
+    channels: list[str]
+    channel_index: list[int]
     shift: torch.Tensor
+    load_columns: list[str] = field(default_factory=list)
+    load_index: list[int] = field(default_factory=list)
+
+    recording = "rows"
+
+    @property
+    def rows(self) -> int:
+        return self.layout.shape[0]
 
     @property
     def recordings(self) -> dict[str, RowData]:
-        return {"rows": self}
+        return {self.recording: self}
 
+    def first_non_finite_row(self) -> int | None:
+        """The first row with a NaN, empty or infinite channel cell (a scan: for error messages only)."""
+        block = max(1, BLOCK_BYTES // (8 * self.layout.shape[1]))
+        for start in range(0, self.rows, block):
+            values = np.asarray(mapped_rows(self.layout, start, min(block, self.rows - start))[:, self.channel_index])
+            bad = ~np.isfinite(values).all(axis=1)
+            if bad.any():
+                return start + int(np.argmax(bad))
+        return None
 
 
 class BlockDataset(Dataset):
-    """Block ``i`` is rows ``[i B, (i + 1) B)`` minus ``shift``, float64, read through its own memory map.
+    """Block ``i`` is rows ``[i B, (i + 1) B)`` as a :class:`RowBlock`, read through its own memory map.
 
     Mapping one block at a time (and dropping the map after the copy) keeps the resident
     memory to about a few blocks, whatever the file's size. Conversion and shift are one pass
@@ -86,31 +115,34 @@ class BlockDataset(Dataset):
 
     RING = 3
 
-    def __init__(self, layout: NpyLayout, block_rows: int, shift: np.ndarray) -> None:
-        self.layout = layout
+    def __init__(self, data: RowData, block_rows: int) -> None:
+        self.data = data
         self.block_rows = block_rows
-        self.shift = shift
+        self.shift = data.shift.numpy()
+        # Every column in order (the usual PCA case): no gather before the conversion.
+        self.all_columns = data.channel_index == list(range(data.layout.shape[1]))
         self.buffers: list[np.ndarray] = []
         self.turn = 0
 
     def __len__(self) -> int:
-        return math.ceil(self.layout.shape[0] / self.block_rows)
+        return math.ceil(self.data.rows / self.block_rows)
 
-    def __getitem__(self, index: int) -> torch.Tensor:
+    def __getitem__(self, index: int) -> RowBlock:
         """Block ``index``; ``-1`` is an empty block (padding for a rank with fewer blocks)."""
-        rows, p = self.layout.shape
+        p, n = len(self.data.channel_index), len(self.data.load_index)
         if index < 0:
-            return torch.zeros(0, p, dtype=torch.float64)
+            return RowBlock(self.data.rows, torch.zeros(0, p, dtype=torch.float64), torch.zeros(0, n, dtype=torch.float64))
         start = index * self.block_rows
-        count = min(self.block_rows, rows - start)
-        mapped = mapped_rows(self.layout, start, count)
+        count = min(self.block_rows, self.data.rows - start)
+        mapped = mapped_rows(self.data.layout, start, count)
         if len(self.buffers) < self.RING:
             self.buffers.append(np.empty((self.block_rows, p)))
         buffer = self.buffers[self.turn % self.RING][:count]
         self.turn += 1
-        np.subtract(mapped, self.shift, out=buffer, dtype=np.float64)
+        np.subtract(mapped if self.all_columns else mapped[:, self.data.channel_index], self.shift, out=buffer, dtype=np.float64)
+        loads = np.array(mapped[:, self.data.load_index], dtype=np.float64)
         del mapped
-        return torch.from_numpy(buffer)
+        return RowBlock(start, torch.from_numpy(buffer), torch.from_numpy(loads))
 
 
 class ShardSampler(Sampler[int]):
@@ -136,31 +168,43 @@ class ShardSampler(Sampler[int]):
 
 
 class RowFileDataModule(L.LightningDataModule):
-    """Serves a row file as ``{"rows": loader of float64 blocks}``, one pass per epoch.
+    """Serves a row file as ``{"rows": loader of RowBlock}``, one pass per epoch (a subclass may name it otherwise).
 
     Args:
         path: ``.npy`` (any numeric dtype; read through a memory map) or ``.csv`` (header row;
-            converted once to ``.npy`` in ``cache_dir``).
+            empty cells read as NaN; converted once to ``.npy`` in ``cache_dir``).
         columns: names for a ``.npy``'s columns (default ``c0, c1, ...``).
+        channel_columns: the columns to fit (default: all).
         block_rows: rows per block (default: about 32 MB of float64 per block).
         cache_dir: where CSV conversions live (default: ``.sfmnet-cache`` beside the CSV).
     """
 
-    recording = "rows"
-
     def __init__(
-        self, path: str, columns: list[str] | None = None, block_rows: int | None = None, cache_dir: str | None = None
+        self,
+        path: str,
+        columns: list[str] | None = None,
+        channel_columns: list[str] | None = None,
+        block_rows: int | None = None,
+        cache_dir: str | None = None,
     ) -> None:
         super().__init__()
         self.path = Path(path)
         self.columns = columns
+        self.channel_columns = list(channel_columns) if channel_columns else None
         self.block_rows = block_rows
         self.cache_dir = Path(cache_dir) if cache_dir else None
         self.data: RowData | None = None
 
     def setup(self, stage: str | None = None) -> None:
-        if self.data is not None:
-            return
+        if self.data is None:
+            self.data = self.build()
+
+    def build(self) -> RowData:
+        layout, names = self.open_rows()
+        return self.row_data(layout, names, self.channel_columns or names)
+
+    def open_rows(self) -> tuple[NpyLayout, list[str]]:
+        """The file's layout and its column names (a CSV converted to ``.npy`` first)."""
         if not self.path.is_file():
             raise SfmnetError(f"{self.path} is not a file: check data.path (a .npy or .csv of rows)")
         source = self.path if self.path.suffix == ".npy" else csv_to_npy(self.path, self.cache_dir)
@@ -171,20 +215,35 @@ class RowFileDataModule(L.LightningDataModule):
         rows, p = layout.shape
         if rows < 2 or not np.issubdtype(layout.dtype, np.number):
             raise SfmnetError(f"{source} holds a {layout.dtype} array of shape {layout.shape}: give a 2-D numeric array, one row per sample")
-        columns = self.columns or (csv_header(self.path) if self.path.suffix != ".npy" else [f"c{i}" for i in range(p)])
-        if len(columns) != p:
-            raise SfmnetError(f"{len(columns)} names in data.columns for {p} columns in {self.path}")
-        shift = torch.from_numpy(np.asarray(mapped_rows(layout, 0, min(rows, SHIFT_ROWS)), dtype=np.float64).mean(axis=0))
-        if not torch.isfinite(shift).all():
-            raise SfmnetError(f"{self.path} has NaN or infinite values in its first rows: repair the file")
-        self.data = RowData(layout=layout, columns=list(columns), shift=shift)
+        names = self.columns or (csv_header(self.path) if self.path.suffix != ".npy" else [f"c{i}" for i in range(p)])
+        if len(names) != p:
+            raise SfmnetError(f"{len(names)} names in data.columns for {p} columns in {self.path}")
+        return layout, list(names)
+
+    def row_data(self, layout: NpyLayout, names: list[str], channels: list[str], data_class: type = RowData, **extra) -> RowData:
+        """``data_class`` over ``channels`` (and ``extra``), with the shift: the channels' mean over the first rows."""
+        index = column_index(names, channels, "channel", self.path)
+        first = np.asarray(mapped_rows(layout, 0, min(layout.shape[0], SHIFT_ROWS))[:, index], dtype=np.float64)
+        if not np.isfinite(first).all():
+            row = int(np.argmax(~np.isfinite(first).all(axis=1)))
+            raise SfmnetError(f"{self.path} data row {row} (0-based) has a NaN, empty or infinite channel cell: repair or drop that row")
+        return data_class(layout=layout, channels=list(channels), channel_index=index, shift=torch.from_numpy(first.mean(axis=0)), **extra)
 
     def train_dataloader(self) -> dict[str, DataLoader]:
         assert self.data is not None, "setup() runs before the loaders"
-        layout = self.data.layout
-        rows = self.block_rows or max(1, BLOCK_BYTES // (8 * layout.shape[1]))
-        dataset = BlockDataset(layout, rows, self.data.shift.numpy())
-        return {self.recording: DataLoader(dataset, batch_size=None, sampler=ShardSampler(len(dataset)))}
+        loaders = {}
+        for name, rows in self.data.recordings.items():
+            dataset = BlockDataset(rows, self.block_rows or max(1, BLOCK_BYTES // (8 * rows.layout.shape[1])))
+            loaders[name] = DataLoader(dataset, batch_size=None, sampler=ShardSampler(len(dataset)))
+        return loaders
+
+
+def column_index(names: list[str], wanted: list[str], role: str, path: Path) -> list[int]:
+    """Positions of ``wanted`` among the file's column ``names``."""
+    missing = [name for name in wanted if name not in names]
+    if missing:
+        raise SfmnetError(f"{role} column '{missing[0]}' is not in {path} (its columns: {', '.join(names)})")
+    return [names.index(name) for name in wanted]
 
 
 def csv_header(path: Path) -> list[str]:
@@ -193,7 +252,7 @@ def csv_header(path: Path) -> list[str]:
 
 
 def csv_to_npy(path: Path, cache_dir: Path | None, chunk_rows: int = 100_000) -> Path:
-    """Convert a numeric CSV (header row) to float64 ``.npy`` once; reuse it while the CSV's size and mtime match."""
+    """Convert a numeric CSV (header row; empty cells NaN) to float64 ``.npy`` once; reuse it while its size and mtime match."""
     stat = path.stat()
     cache = (cache_dir or path.parent / ".sfmnet-cache") / f"{path.stem}-{stat.st_size}-{stat.st_mtime_ns}.npy"
     if cache.is_file():
@@ -214,7 +273,7 @@ def csv_to_npy(path: Path, cache_dir: Path | None, chunk_rows: int = 100_000) ->
             if not any(cell.strip() for cell in row):
                 continue
             try:
-                chunk.append([float(cell) for cell in row])
+                chunk.append([float(cell) if cell.strip() else math.nan for cell in row])
             except ValueError:
                 partial.unlink(missing_ok=True)
                 raise SfmnetError(f"{path} line {line} has a non-numeric cell: every cell must be a number") from None

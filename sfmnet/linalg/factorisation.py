@@ -130,10 +130,8 @@ def metric_gram(motion: torch.Tensor, magnitude: float) -> torch.Tensor:
             f"only {f} samples for {unknowns} unknowns of the metric constraint: "
             f"record at least {unknowns} orientations (dozens give a good calibration)"
         )
-    design = quadratic_design(motion)
-    target = torch.full((f, 1), magnitude**2, dtype=motion.dtype)
-    q = symmetric_from_upper(torch.linalg.lstsq(design, target).solution[:, 0], n)
-    return positive_definite_or_raise(q)
+    coefficients = torch.linalg.lstsq(metric_design(motion, centre_free=False), motion.new_ones(f, 1)).solution[:, 0]
+    return ellipsoid_from_coefficients(coefficients, n, magnitude).gram
 
 
 def positive_definite_or_raise(q: torch.Tensor) -> torch.Tensor:
@@ -191,12 +189,40 @@ def fit_ellipsoid(points: torch.Tensor, magnitude: float) -> EllipsoidFit:
             f"only {f} samples for {unknowns} unknowns of the metric constraint with offsets: "
             f"record at least {unknowns} orientations (dozens give a good calibration)"
         )
-    design = torch.cat([quadratic_design(points), points], dim=1)
-    ones = torch.ones(f, 1, dtype=points.dtype)
-    solution = torch.linalg.lstsq(design, ones).solution[:, 0]
-    a = symmetric_from_upper(solution[: n * (n + 1) // 2], n)
-    b = solution[n * (n + 1) // 2 :]
-    a = positive_definite_or_raise(a)
+    coefficients = torch.linalg.lstsq(metric_design(points, centre_free=True), points.new_ones(f, 1)).solution[:, 0]
+    return ellipsoid_from_coefficients(coefficients, n, magnitude)
+
+
+def metric_design(points: torch.Tensor, centre_free: bool) -> torch.Tensor:
+    """Rows of the metric constraint's linear system ``design @ coefficients = 1``.
+
+    Args:
+        points: ``f x n``.
+        centre_free: add the linear terms ``y`` of an ellipsoid with an unknown centre (offsets).
+
+    Returns:
+        ``f x n(n+1)/2`` (:func:`quadratic_design`), or ``f x (n(n+1)/2 + n)`` with the centre free.
+    """
+    quadratic = quadratic_design(points)
+    return torch.cat([quadratic, points], dim=1) if centre_free else quadratic
+
+
+def ellipsoid_from_coefficients(coefficients: torch.Tensor, n: int, magnitude: float) -> EllipsoidFit:
+    """The ellipsoid ``y A y^T + b y^T = 1`` (``b`` absent: centred) as centre ``c = -A^-1 b / 2`` and
+    metric ``Q = F^2 A / (1 + c A c^T)`` (eq. 11 with NOTES 4's offsets).
+
+    Args:
+        coefficients: ``vech(A)`` (``n(n+1)/2``), then ``b`` (``n``) when the centre is free.
+        n: the dimension.
+        magnitude: ``F``.
+
+    Raises:
+        SfmnetError: no ellipsoid (``A`` or ``Q`` not positive definite).
+    """
+    a = positive_definite_or_raise(symmetric_from_upper(coefficients[: n * (n + 1) // 2], n))
+    b = coefficients[n * (n + 1) // 2 :]
+    if len(b) == 0:
+        return EllipsoidFit(centre=a.new_zeros(n), gram=positive_definite_or_raise(magnitude**2 * a))
     centre = -torch.linalg.solve(a, b) / 2
     scale = 1 + centre @ a @ centre
     return EllipsoidFit(centre=centre, gram=positive_definite_or_raise(magnitude**2 * a / scale))
@@ -207,7 +233,7 @@ def fit_ellipsoid(points: torch.Tensor, magnitude: float) -> EllipsoidFit:
 MIN_COVERAGE = 0.25
 
 
-def motion_coverage(motion: torch.Tensor, magnitude: float) -> float:
+def motion_coverage(motion_gram: torch.Tensor, count: float, magnitude: float) -> float:
     """How fully the recovered loads span the space: ``sigma_min(M) / (F sqrt(f / n))``.
 
     1 for loads spread evenly over the whole circle or sphere; 0 for collinear (2-D) or
@@ -215,18 +241,20 @@ def motion_coverage(motion: torch.Tensor, magnitude: float) -> float:
     plausible-looking but meaningless calibration.
 
     Args:
-        motion: ``f x n`` recovered loads (about the origin).
+        motion_gram: ``M^T M`` (``n x n``) of the ``f x n`` recovered loads (about the origin).
+        count: ``f``.
         magnitude: ``F``.
     """
-    f, n = motion.shape
-    return float(torch.linalg.svdvals(motion)[-1] / (magnitude * math.sqrt(f / n)))
+    n = motion_gram.shape[0]
+    smallest = float(torch.linalg.eigvalsh(motion_gram)[0])
+    return math.sqrt(max(smallest, 0.0)) / (magnitude * math.sqrt(count / n))
 
 
-def require_coverage(motion: torch.Tensor, magnitude: float) -> float:
+def require_coverage(motion_gram: torch.Tensor, count: float, magnitude: float) -> float:
     """:func:`motion_coverage`, raising :class:`SfmnetError` below :data:`MIN_COVERAGE`."""
-    coverage = motion_coverage(motion, magnitude)
+    coverage = motion_coverage(motion_gram, count, magnitude)
     if coverage < MIN_COVERAGE:
-        n = motion.shape[1]
+        n = motion_gram.shape[0]
         raise SfmnetError(
             f"the recovered loads barely span {n} dimensions (coverage {coverage:.2f}, a full "
             f"{'circle' if n == 2 else 'sphere'} is 1): the loads are collinear or coplanar; turn the "

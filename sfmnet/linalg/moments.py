@@ -48,14 +48,19 @@ class Moments:
         """``sum_j (z_j - mean)^T (z_j - mean)`` (``p x p``) = ``cross - total^T total / count``."""
         return self.cross - torch.outer(self.total, self.total) / self.count
 
+    def cross_about(self, point: torch.Tensor) -> torch.Tensor:
+        """``sum_j (z_j - a)^T (z_j - a)`` (``p x p``) about any point ``a`` (``p``), e.g. offsets or the origin."""
+        d = point.to(self.shift) - self.shift
+        return self.cross - torch.outer(d, self.total) - torch.outer(self.total, d) + self.count * torch.outer(d, d)
 
-def principal_subspace(moments: Moments, rank: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Affine PCA from the statistics: components (``k x p``, orthonormal rows) and singular values (``k``).
 
-    The singular values of the centred data are the square roots of the eigenvalues of its
-    centred cross product (paper eqs. 6-8 with ``Z* = U S V^T``: ``Z*^T Z* = V S^2 V^T``).
+def principal_subspace(scatter: torch.Tensor, rank: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The leading right singular vectors (``k x p``, orthonormal rows) and singular values (``k``) of
+    data whose scatter ``Z*^T Z*`` (``p x p``) is given, e.g. :meth:`Moments.centred_cross` for PCA.
+
+    From paper eqs. 6-8 with ``Z* = U Sigma V^T``: ``Z*^T Z* = V Sigma^2 V^T``.
     """
-    eigenvalues, vectors = torch.linalg.eigh(moments.centred_cross())
+    eigenvalues, vectors = torch.linalg.eigh(scatter)
     order = torch.argsort(eigenvalues, descending=True)[:rank]
     components = vectors[:, order].T
     # A fixed sign per component (largest entry positive) so runs compare entry by entry.
@@ -63,10 +68,15 @@ def principal_subspace(moments: Moments, rank: int) -> tuple[torch.Tensor, torch
     return components * signs, eigenvalues[order].clamp_min(0).sqrt()
 
 
-def cross_product(rows: torch.Tensor) -> torch.Tensor:
-    """``rows^T rows`` (``p x p``). On the CPU through numpy's BLAS, which handles tall, narrow
-    blocks several times faster than torch's matmul (measured: 4 against 18 ms for 524288 x 8)."""
+def singular_values_from_scatter(scatter: torch.Tensor) -> torch.Tensor:
+    """All ``p`` singular values of data with scatter ``Z*^T Z*``, descending."""
+    return torch.linalg.eigvalsh(scatter).flip(0).clamp_min(0).sqrt()
+
+
+def cross_product(rows: torch.Tensor, other: torch.Tensor | None = None) -> torch.Tensor:
+    """``rows^T other`` (``p x q``; ``other`` defaults to ``rows``). On the CPU through numpy's BLAS, which
+    handles tall, narrow blocks several times faster than torch's matmul (measured: 4 against 18 ms for 524288 x 8)."""
     if rows.device.type == "cpu":
         array = rows.numpy()
-        return torch.from_numpy(array.T @ array)
-    return rows.T @ rows
+        return torch.from_numpy(array.T @ (array if other is None else other.numpy()))
+    return rows.T @ (rows if other is None else other)

@@ -60,6 +60,7 @@ def shape_information(
     unknown_directions: torch.Tensor,
     unknown_maps: torch.Tensor,
     estimate_offset: bool,
+    unknown_weight: float = 1.0,
 ) -> torch.Tensor:
     """Fisher information of ``(vec S, o)`` per unit noise variance, the unknown directions marginalised.
 
@@ -69,6 +70,7 @@ def shape_information(
         unknown_directions: ``f x d`` fitted unit directions ``u_j`` of the unknown-load rows.
         unknown_maps: ``f x d x n``, their maps ``D_j`` (load units per unit direction).
         estimate_offset: include the offsets.
+        unknown_weight: how many rows each unknown row stands for (a sample of a longer recording).
 
     Returns:
         ``(n p [+ p]) x (n p [+ p])``.
@@ -76,7 +78,7 @@ def shape_information(
     p = shape.shape[1]
     known = global_jacobian(known_motion, p, estimate_offset)
     unknown = global_jacobian(torch.einsum("jd,jdn->jn", unknown_directions, unknown_maps), p, estimate_offset)
-    information = torch.einsum("jpa,jpb->ab", known, known) + torch.einsum("jpa,jpb->ab", unknown, unknown)
+    information = torch.einsum("jpa,jpb->ab", unknown, unknown)
     if len(unknown_directions) and unknown_directions.shape[1] > 1:
         # d z_j / d delta_j = T_j^T D_j S, the direction's tangent coordinates.
         tangent_maps = torch.einsum("jde,jdn->jen", tangent_bases(unknown_directions), unknown_maps)
@@ -84,7 +86,7 @@ def shape_information(
         cross = torch.einsum("jpa,jpd->jad", unknown, direction)
         local = torch.einsum("jpd,jpe->jde", direction, direction)
         information = information - torch.einsum("jad,jde,jbe->ab", cross, torch.linalg.inv(local), cross)
-    return information
+    return torch.einsum("jpa,jpb->ab", known, known) + unknown_weight * information
 
 
 def calibration_uncertainty(
@@ -95,15 +97,17 @@ def calibration_uncertainty(
     estimate_offset: bool,
     residual_sum_of_squares: float,
     observations: int,
+    unknown_weight: float = 1.0,
 ) -> CalibrationUncertainty:
     """Cramer-Rao standard errors of the calibration matrix ``C = pinv(S)^T`` and the offsets.
 
     The noise variance is ``RSS / (observations - parameters)``; the matrix covariance is
-    the bound on ``S`` carried through the Jacobian of ``pinv(S)^T``.
+    the bound on ``S`` carried through the Jacobian of ``pinv(S)^T``. ``unknown_weight``: see
+    :func:`shape_information` (``RSS`` and ``observations`` then of the whole recording).
     """
     n, p = shape.shape
-    information = shape_information(shape, known_motion, unknown_directions, unknown_maps, estimate_offset)
-    parameters = information.shape[0] + len(unknown_directions) * (unknown_directions.shape[1] - 1)
+    information = shape_information(shape, known_motion, unknown_directions, unknown_maps, estimate_offset, unknown_weight)
+    parameters = information.shape[0] + unknown_weight * len(unknown_directions) * (unknown_directions.shape[1] - 1)
     noise_var = residual_sum_of_squares / max(observations - parameters, 1)
     covariance = noise_var * torch.linalg.pinv(information, hermitian=True)
     shape_cov = covariance[: n * p, : n * p]

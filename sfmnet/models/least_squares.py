@@ -7,7 +7,7 @@ import torch
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.least_squares import least_squares_shape
-from sfmnet.models.linear_calibrator import Batch, LinearCalibrator
+from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, rms_norm
 from sfmnet.models.losses import reconstruction_loss
 
 
@@ -32,7 +32,7 @@ class LeastSquaresCalibration(LinearCalibrator):
         shape, offset = least_squares_shape(recording.loads, recording.readings, self.estimate_offset)
         self.singular_values = torch.linalg.svdvals(recording.readings - offset)
         # One scale per axis: forces and torques differ by orders of magnitude.
-        self.set_solution(shape, offset, recording.readings, load_scale=recording.loads.pow(2).mean(dim=0).sqrt())
+        self.set_solution(shape, offset, rms_norm(recording.readings), load_scale=recording.loads.pow(2).mean(dim=0).sqrt())
 
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         _, readings, loads = batch

@@ -34,6 +34,8 @@ class LinearCalibrator(nn.Module, ABC):
 
     name: str
     recording: str
+    # Whether the metric constraint shapes the motion (the motion figure is drawn then).
+    constrained = False
 
     def __init__(self, estimate_offset: bool) -> None:
         super().__init__()
@@ -54,16 +56,26 @@ class LinearCalibrator(nn.Module, ABC):
     def initialise(self, recording: CalibrationRecording) -> None:
         """Create the parameters from the closed-form solution: the first step of fitting."""
 
-    @abstractmethod
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """Loss terms of one batch ``(index, readings, loads)``; key ``"loss"`` is minimised."""
+        """Loss terms of one batch ``(index, readings, loads)``; key ``"loss"`` is minimised (models fitted by steps)."""
+        raise NotImplementedError(f"{type(self).__name__} is fitted from statistics, not by a loss")
+
+    @property
+    def fit_warnings(self) -> list[str]:
+        """What the fit itself has to say (e.g. not converged), beside the diagnostics' warnings."""
+        return []
+
+    def report_recording(self, recording: CalibrationRecording) -> CalibrationRecording:
+        """The rows the results (error bars, residuals, figures) are computed on: the training recording."""
+        return recording
 
     def set_solution(
-        self, shape: torch.Tensor, offset: torch.Tensor, readings: torch.Tensor, load_scale: float | torch.Tensor
+        self, shape: torch.Tensor, offset: torch.Tensor, reading_scale: torch.Tensor, load_scale: float | torch.Tensor
     ) -> None:
-        """Store a solution given in physical units (``S``: ``n x p``, ``o``: ``p``; ``load_scale`` scalar or ``n``)."""
-        self.reading_scale = (readings - readings.mean(dim=0)).pow(2).sum(dim=1).mean().sqrt()
-        self.load_scale = torch.as_tensor(load_scale, dtype=readings.dtype)
+        """Store a solution given in physical units (``S``: ``n x p``, ``o``: ``p``; ``load_scale`` scalar or ``n``;
+        ``reading_scale`` from :func:`rms_norm` of the readings)."""
+        self.reading_scale = reading_scale
+        self.load_scale = torch.as_tensor(load_scale, dtype=shape.dtype)
         self.shape = dense_parameter(shape * self.load_scale.reshape(-1, 1) / self.reading_scale)
         self.offset = dense_parameter(offset / self.reading_scale, requires_grad=self.estimate_offset)
 
@@ -125,6 +137,11 @@ class LinearCalibrator(nn.Module, ABC):
         """RMS of ``Z - M S - o`` with ``M`` the least-squares loads: what the rank-n model leaves unexplained."""
         residual = recording.readings - self.motion_of(recording.readings) @ self.physical_shape() - self.physical_offset()
         return float(residual.pow(2).mean().sqrt())
+
+
+def rms_norm(readings: torch.Tensor) -> torch.Tensor:
+    """RMS norm of the centred readings (``f x p``): the unit the parameters are kept in."""
+    return (readings - readings.mean(dim=0)).pow(2).sum(dim=1).mean().sqrt()
 
 
 def dense_parameter(value: torch.Tensor, requires_grad: bool = True) -> nn.Parameter:

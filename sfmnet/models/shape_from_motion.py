@@ -8,6 +8,7 @@ import torch
 
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.errors import SfmnetError
+from sfmnet.linalg.anderson import AndersonAcceleration
 from sfmnet.linalg.directions import direction_grid
 from sfmnet.linalg.factorisation import (
     fit_ellipsoid,
@@ -20,7 +21,12 @@ from sfmnet.linalg.factorisation import (
 from sfmnet.linalg.frame import frame_rotation
 from sfmnet.linalg.least_squares import least_squares_shape
 from sfmnet.linalg.motion import constrained_motion
-from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, dense_parameter
+from sfmnet.models.linear_calibrator import (
+    Batch,
+    LinearCalibrator,
+    dense_parameter,
+    rms_norm,
+)
 from sfmnet.models.losses import metric_constraint_loss, reconstruction_loss
 
 REFINEMENTS = ("auto", "alternation", "penalty", "marginal")
@@ -123,9 +129,8 @@ class ShapeFromMotion(LinearCalibrator):
         else:
             self.start_from_closed_form(recording)
         if self.constrained:
-            self.coverage = require_coverage(
-                self.directions(recording.readings / self.reading_scale, recording.row_configuration, 0.0), 1.0
-            )
+            directions = self.directions(recording.readings / self.reading_scale, recording.row_configuration, 0.0)
+            self.coverage = require_coverage(directions.T @ directions, len(directions), 1.0)
         self.orient(recording)
         if self.refinement in ("auto", "marginal") and self.constrained:
             noise = self.closed_form_noise(recording)
@@ -195,7 +200,7 @@ class ShapeFromMotion(LinearCalibrator):
             shape = metric_shape(factors.shape, ellipsoid.gram)
         elif self.constrained:
             shape = metric_shape(factors.shape, metric_gram(factors.motion, magnitude))
-        self.set_solution(shape, offset, readings, load_scale=magnitude if self.constrained else 1.0)
+        self.set_solution(shape, offset, rms_norm(readings), load_scale=magnitude if self.constrained else 1.0)
         self.set_direction_maps(recording)
 
     def start_from_known_loads(self, recording: CalibrationRecording) -> None:
@@ -214,7 +219,7 @@ class ShapeFromMotion(LinearCalibrator):
         maps = recording.maps
         # One scale per axis (forces and torques differ by orders of magnitude), never zero.
         scale = maps.norm(dim=1).pow(2).mean(dim=0).sqrt()
-        self.set_solution(shape, offset, recording.readings, load_scale=scale.clamp_min(1e-3 * float(scale.max())))
+        self.set_solution(shape, offset, rms_norm(recording.readings), load_scale=scale.clamp_min(1e-3 * float(scale.max())))
         self.set_direction_maps(recording)
 
     def set_direction_maps(self, recording: CalibrationRecording) -> None:
@@ -287,29 +292,12 @@ class ShapeFromMotion(LinearCalibrator):
         return solution
 
     @torch.no_grad()
-    def alternate(self, batch: Batch, history: int = 5) -> None:
-        """``alternation_steps`` rounds of :meth:`alternation_map` on a full batch, Anderson-accelerated.
-
-        Plain alternation converges linearly and can be slow (offsets with a partial frame
-        from ``n - 1`` known loads); Anderson mixing of the last ``history`` rounds reaches the
-        same fixed point in far fewer. A round that would raise the residual restarts the history.
-        """
-        iterates, residuals = [], []
+    def alternate(self, batch: Batch) -> None:
+        """``alternation_steps`` rounds of :meth:`alternation_map` on a full batch, Anderson-accelerated."""
+        acceleration = AndersonAcceleration()
         current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
-        best = float("inf")
         for _ in range(self.alternation_steps):
-            mapped = self.alternation_map(batch)
-            residual = (mapped - current).flatten()
-            norm = float(residual.norm())
-            if norm > best:
-                iterates, residuals = [], []
-                current = mapped
-            else:
-                best = norm
-                iterates.append(mapped.flatten())
-                residuals.append(residual)
-                iterates, residuals = iterates[-history:], residuals[-history:]
-                current = anderson_mix(iterates, residuals).reshape(current.shape)
+            current = acceleration.step(current, self.alternation_map(batch))
             self.shape.copy_(current[: self.rank])
             self.offset.copy_(current[self.rank])
 
@@ -349,13 +337,3 @@ class ShapeFromMotion(LinearCalibrator):
         rotation = frame_rotation(self.motion_of(recording.readings[known]), recording.loads[known], hint_motion, hint)
         self.shape.copy_(rotation.T @ self.shape)
 
-
-def anderson_mix(mapped: list[torch.Tensor], residuals: list[torch.Tensor]) -> torch.Tensor:
-    """Anderson acceleration: ``sum_i a_i G(x_i)`` with ``a = argmin |sum_i a_i r_i|``, ``sum_i a_i = 1``."""
-    if len(mapped) == 1:
-        return mapped[0]
-    r = torch.stack(residuals, dim=1)
-    differences = r[:, 1:] - r[:, :1]
-    gamma = torch.linalg.lstsq(differences, -r[:, 0:1]).solution[:, 0]
-    weights = torch.cat([1 - gamma.sum(dim=0, keepdim=True), gamma])
-    return torch.stack(mapped, dim=1) @ weights

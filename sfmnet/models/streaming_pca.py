@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from sfmnet.data.row_file import RowData
+from sfmnet.data.row_file import RowBlock, RowData
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.moments import Moments, principal_subspace
 
@@ -26,6 +26,7 @@ class StreamingPCA(nn.Module):
     recording = "rows"
     alternating = False
     streaming = True
+    dev_run_passes = 1
 
     def __init__(self, rank: int) -> None:
         super().__init__()
@@ -41,20 +42,20 @@ class StreamingPCA(nn.Module):
         return self.moments is not None
 
     def initialise(self, data: RowData) -> None:
-        p = len(data.columns)
+        p = len(data.channels)
         if not 1 <= self.rank <= p:
             raise SfmnetError(f"model.rank is {self.rank} but the file has {p} columns: choose 1 to {p}")
-        self.shift = data.shift
+        self.data = data
         self.moments = Moments.empty(data.shift)
         self.components = nn.Parameter(torch.zeros(self.rank, p, dtype=torch.float64))
         self.mean = nn.Parameter(torch.zeros(p, dtype=torch.float64))
 
     def begin_pass(self) -> None:
-        self.moments = Moments.empty(self.shift)
+        self.moments = Moments.empty(self.data.shift)
 
-    def accumulate(self, block: torch.Tensor) -> None:
-        """Add a block of rows that arrive minus the data's shift (:class:`RowFileDataModule`)."""
-        self.moments.add_shifted(block)
+    def accumulate(self, block: RowBlock) -> None:
+        """Add a block of rows, which arrive minus the data's shift."""
+        self.moments.add_shifted(block.readings)
 
     def reduce(self, strategy) -> None:
         """Sum the statistics over processes (each block was read by exactly one)."""
@@ -65,7 +66,8 @@ class StreamingPCA(nn.Module):
     def finalise(self) -> None:
         if self.moments.count <= self.rank:
             raise SfmnetError(f"{int(self.moments.count)} rows for {self.rank} components: give more rows or a smaller model.rank")
-        components, singular = principal_subspace(self.moments, self.rank)
+        require_finite(self.moments, self.data)
+        components, singular = principal_subspace(self.moments.centred_cross(), self.rank)
         self.components.copy_(components)
         self.mean.copy_(self.moments.mean())
         self.singular_values = singular
@@ -76,3 +78,12 @@ class StreamingPCA(nn.Module):
         if self.singular_values is None:
             return self.components.detach()
         return self.singular_values.sqrt()[:, None] * self.components.detach()
+
+
+def require_finite(moments: Moments, data: RowData) -> None:
+    """A NaN or infinite cell anywhere poisons the sums: name its row (one scan, on this error path only)."""
+    if not bool(torch.isfinite(moments.cross).all()):
+        row = data.first_non_finite_row()
+        raise SfmnetError(
+            f"{data.layout.path} data row {row} (0-based) has a NaN, empty or infinite channel cell: repair or drop that row"
+        )

@@ -26,6 +26,14 @@ def fit(
     """
     if ckpt_path is not None and not Path(ckpt_path).is_file():
         raise SfmnetError(f"ckpt_path {ckpt_path} is not a file: give a run's checkpoints/<method>/last.ckpt")
+    if ckpt_path is not None and getattr(model, "streaming", False):
+        raise SfmnetError("a streamed fit keeps its sums outside checkpoints and cannot resume: drop ckpt_path and rerun it")
+    if getattr(model, "streaming", False):
+        # The row data module deals its blocks to processes itself; a distributed sampler would split them again.
+        trainer_options["use_distributed_sampler"] = False
+        if cfg.trainer.get("fast_dev_run"):
+            # A dev run of a fit in passes: one block a pass, as many passes as a result needs.
+            trainer_options.update(fast_dev_run=False, limit_train_batches=1, max_epochs=model.dev_run_passes)
     module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer))
     trainer: L.Trainer = instantiate(cfg.trainer, **trainer_options)
     trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)

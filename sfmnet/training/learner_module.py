@@ -93,6 +93,8 @@ class LearnerModule(L.LightningModule):
         if self.streaming:
             self.model.reduce(self.trainer.strategy)
             self.model.finalise()
+            # A model that needs several passes says when it is done (identical on every process).
+            self.trainer.should_stop = getattr(self.model, "converged", False)
         singular = torch.linalg.svdvals(self.model.shape.detach())
         self.log_dict({f"shape/singular_value_{i}": value for i, value in enumerate(singular)})
         self.log_dict(getattr(self.model, "monitor", dict)(), prog_bar=True)

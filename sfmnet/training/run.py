@@ -1,7 +1,7 @@
 """One training run: build the data and each method from the config, fit them through one Trainer setup, write results.
 
-Sensorimotor data (primordial learning) goes to :func:`train_sensorimotor`, a row file to
-:func:`train_streaming`; what follows is calibration.
+Sensorimotor data (primordial learning) goes to :func:`train_sensorimotor`, a row file for PCA to
+:func:`train_streaming`; what follows is calibration, in memory or streamed from a row file.
 
 Run directory layout::
 
@@ -27,6 +27,7 @@ import torch
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_only
 from matplotlib import pyplot as plt
 from omegaconf import DictConfig
 
@@ -35,6 +36,7 @@ from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.data.row_file import RowFileDataModule
 from sfmnet.data.sensorimotor import SensorimotorDataModule
+from sfmnet.data.streamed_calibration import StreamedCalibrationDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import motion_figure, spectrum_figure
@@ -42,7 +44,6 @@ from sfmnet.eval.held_out import load_errors
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.io import save_figure_atomic, write_json_atomic
 from sfmnet.models.linear_calibrator import LinearCalibrator
-from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.cross_validation import (
     folds_figure,
     leave_one_group_out,
@@ -105,12 +106,13 @@ def fit_method(
     seconds = time.perf_counter() - started
 
     data = datamodule.data
-    recording = data.recordings[model.recording]
+    recording = model.report_recording(data.recordings[model.recording])
     loads = model.fitted_loads(recording)
     uncertainty = model.uncertainty(recording, loads)
     diagnostics, warnings = calibration_diagnostics(
         model, recording, data.channels, model.fitted_residuals(recording, loads)
     )
+    warnings = [*model.fit_warnings, *warnings]
     calibration = Calibration(
         matrix=model.calibration_matrix(),
         offset=model.physical_offset(),
@@ -146,7 +148,8 @@ def fit_method(
     if data.test is not None:
         errors = load_errors(calibration, data.test.readings, data.test.true_loads)
         metrics.update({f"test/{key}": value for key, value in errors.items()})
-    log_figures(name, model, recording, data.load_unit, model.singular_values, run_dir, logger, trainer.global_step)
+    if trainer.is_global_zero:
+        log_figures(name, model, recording, data.load_unit, model.singular_values, run_dir, logger, trainer.global_step)
     return MethodResult(name=name, calibration=calibration, metrics=metrics, warnings=warnings)
 
 
@@ -166,7 +169,7 @@ def log_figures(
 ) -> None:
     """Save each figure as a PNG in the run directory and in TensorBoard."""
     figures = {"spectrum": spectrum_figure(singular, recording.rank, f"{name}: singular values of the readings")}
-    if isinstance(model, ShapeFromMotion) and model.constrained:
+    if model.constrained:
         # The calibrated readings, not the constraint-pulled motion: they show the noise.
         unknown = ~recording.known
         if recording.direction_maps is None:
@@ -199,7 +202,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     datamodule.setup("fit")
     if isinstance(datamodule, SensorimotorDataModule):
         return train_sensorimotor(cfg, datamodule, run_dir)
-    if isinstance(datamodule, RowFileDataModule):
+    if isinstance(datamodule, RowFileDataModule) and not isinstance(datamodule, StreamedCalibrationDataModule):
         return train_streaming(cfg, datamodule, run_dir)
 
     main_model: LinearCalibrator = instantiate(cfg.model)
@@ -216,6 +219,9 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
         cross_validate(cfg, datamodule.data, model_cfgs, main_model.recording, results, run_dir)
 
     main = results[main_model.name]
+    if rank_zero_only.rank != 0:
+        # Other processes of a distributed fit (same numbers): the first one writes and reports.
+        return main.metrics
     main.calibration.save(run_dir / "calibration.json")
     metrics = dict(main.metrics)
     for name, result in results.items():

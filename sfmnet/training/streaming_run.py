@@ -31,7 +31,7 @@ def train_streaming(cfg: DictConfig, datamodule: RowFileDataModule, run_dir: Pat
     started = time.perf_counter()
     trainer = fit(
         model, cfg, datamodule, logger=logger, callbacks=callbacks, enable_checkpointing=False,
-        default_root_dir=str(run_dir), use_distributed_sampler=False,
+        default_root_dir=str(run_dir),
     )
     seconds = time.perf_counter() - started
     moments = model.moments
@@ -43,11 +43,11 @@ def train_streaming(cfg: DictConfig, datamodule: RowFileDataModule, run_dir: Pat
         "explained_variance_ratio": float(model.singular_values.pow(2).sum()) / total_variance if total_variance else 1.0,
     }
     if trainer.is_global_zero:
-        save_pca(model, datamodule.data.columns, run_dir / "pca.npz")
+        save_pca(model, datamodule.data.channels, run_dir / "pca.npz")
         write_json_atomic(run_dir / "metrics.json", metrics)
         print(f"\nrun directory: {run_dir}")
         print(
-            f"  pca: {int(metrics['rows'])} rows x {len(datamodule.data.columns)} columns in {seconds:.2f} s on "
+            f"  pca: {int(metrics['rows'])} rows x {len(datamodule.data.channels)} columns in {seconds:.2f} s on "
             f"{trainer.world_size} process(es); {model.rank} components explain "
             f"{100 * metrics['explained_variance_ratio']:.2f} % of the variance"
         )

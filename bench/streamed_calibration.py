@@ -1,0 +1,128 @@
+"""Shape-from-motion calibration streamed from disk against the same fit in memory (issue 5, NOTES 11). Run by hand:
+
+    python bench/streamed_calibration.py                 # 1e5, 1e6, 1e7 orientations
+    python bench/streamed_calibration.py --rows 1e8      # a 3.6 GB float32 session (streamed only)
+
+A simulated 3-axis session (6 channels, offsets, 1 % noise, three known loads at the end,
+each the mean of 1000 samples) is
+written once as a float32 ``.npy`` (columns s0..s5, fx, fy, fz; NaN where the load is unknown)
+and calibrated by ``python -m sfmnet train``, each run in its own process so its peak resident
+memory is its own:
+
+- ``streamed``: ``experiment=calibrate_stream`` (pass 1 moments, pass 2 the metric constraint,
+  then one Anderson-accelerated alternation round per pass until a round moves the parameters
+  by less than 1e-9);
+- ``streamed x2``: the same on two processes (``trainer.devices=2 trainer.strategy=ddp``);
+- ``in memory``: ``experiment=calibrate_csv model.refinement=alternation trainer.max_epochs=1``
+  (the closed form, then 50 alternation rounds on the whole array).
+
+Seconds are the run start to finish (Python start, reading, fitting, error bars, figures);
+ratios are the in-memory fit's speed relative to the streamed one measured in the same run
+(> 1: in memory is faster). "vs in memory" is the relative difference of the two calibration
+matrices, "error" the streamed matrix's relative error against the simulated truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+MAGNITUDE = 9.81
+CHANNELS = 6
+COLUMNS = [*(f"s{i}" for i in range(CHANNELS)), "fx", "fy", "fz"]
+
+
+def write_session(path: Path, rows: int, seed: int = 0) -> np.ndarray:
+    """The session, block by block; returns the true calibration matrix (3 x 6)."""
+    generator = np.random.default_rng(seed)
+    shape = generator.normal(size=(3, CHANNELS))
+    offset = generator.normal(size=CHANNELS) * 0.2 * MAGNITUDE
+    noise = 0.01 * MAGNITUDE * np.sqrt((shape**2).sum(axis=1).mean())
+    out = np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=(rows, len(COLUMNS)))
+    step = 1_000_000
+    for start in range(0, rows, step):
+        count = min(step, rows - start)
+        directions = generator.normal(size=(count, 3))
+        loads = MAGNITUDE * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+        block = np.full((count, len(COLUMNS)), np.nan)
+        block[:, :CHANNELS] = loads @ shape + offset + noise * generator.normal(size=(count, CHANNELS))
+        out[start : start + count] = block
+    known = MAGNITUDE * np.eye(3)
+    # Each known load as the mean of 1000 samples at its pose, as one records them.
+    out[-3:, :CHANNELS] = known @ shape + offset + noise / np.sqrt(1000) * generator.normal(size=(3, CHANNELS))
+    out[-3:, CHANNELS:] = known
+    out.flush()
+    return np.linalg.pinv(shape).T
+
+
+def calibrate(path: Path, run_dir: Path, timeout: float, *overrides: str) -> dict:
+    """One run of the CLI under /usr/bin/time; its seconds, peak memory, passes and matrix."""
+    command = [
+        "/usr/bin/time", "-f", "%M", sys.executable, "-m", "sfmnet", "train", f"data.path={path}",
+        f"data.columns=[{','.join(COLUMNS)}]", f"data.magnitude={MAGNITUDE}", f"hydra.run.dir={run_dir}",
+        "trainer.enable_progress_bar=false", *overrides,
+    ]
+    started = time.perf_counter()
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
+    except subprocess.TimeoutExpired:
+        return {"skipped": f"over {timeout:g} s"}
+    seconds = time.perf_counter() - started
+    if done.returncode != 0:
+        return {"skipped": (done.stderr.strip().splitlines() or ["failed"])[-2][:80]}
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    matrix = np.array(json.loads((run_dir / "calibration.json").read_text())["matrix"])
+    return {"seconds": seconds, "peak_mb": int(done.stderr.strip().splitlines()[-1]) / 1024, "passes": metrics["epochs"], "matrix": matrix}
+
+
+def relative(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rows", type=float, nargs="+", default=[1e5, 1e6, 1e7])
+    parser.add_argument("--timeout", type=float, default=600.0)
+    parser.add_argument("--in-memory-up-to", type=float, default=1e7, help="skip the in-memory fit above this many rows")
+    args = parser.parse_args()
+    print("| orientations | file | streamed | streamed x2 | in memory [speed vs streamed] | vs in memory | error vs truth |")
+    print("|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as folder:
+        for rows in [int(r) for r in args.rows]:
+            path = Path(folder) / f"session_{rows}.npy"
+            truth = write_session(path, rows)
+            stream_args = ("experiment=calibrate_stream",)
+            streamed = calibrate(path, Path(folder) / f"s{rows}", args.timeout, *stream_args)
+            double = calibrate(path, Path(folder) / f"d{rows}", args.timeout, *stream_args, "trainer.devices=2", "trainer.strategy=ddp")
+            memory = (
+                calibrate(path, Path(folder) / f"m{rows}", args.timeout, "experiment=calibrate_csv",
+                          "model.refinement=alternation", "trainer.max_epochs=1")
+                if rows <= args.in_memory_up_to else {"skipped": "not run"}
+            )
+
+            def cell(result: dict, passes: bool = False) -> str:
+                if "skipped" in result:
+                    return result["skipped"]
+                extra = f", {result['passes']:.0f} passes" if passes else ""
+                return f"{result['seconds']:.1f} s ({result['peak_mb']:.0f} MB{extra})"
+
+            ratio = f" [{streamed['seconds'] / memory['seconds']:.2f}x]" if "seconds" in memory and "seconds" in streamed else ""
+            agreement = f"{relative(streamed['matrix'], memory['matrix']):.1e}" if "matrix" in memory and "matrix" in streamed else "-"
+            error = f"{100 * relative(streamed['matrix'], truth):.4f} %" if "matrix" in streamed else "-"
+            print(
+                f"| {rows:.0e} | {path.stat().st_size / 1e6:.0f} MB | {cell(streamed, passes=True)} | {cell(double)} | "
+                f"{cell(memory)}{ratio} | {agreement} | {error} |",
+                flush=True,
+            )
+            path.unlink()
+
+
+if __name__ == "__main__":
+    main()

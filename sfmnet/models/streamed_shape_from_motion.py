@@ -1,0 +1,387 @@
+"""Shape from motion from streamed sufficient statistics: a calibration whose memory does not grow with the session."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from sfmnet.data.csv_calibration import first_magnitude_mismatch
+from sfmnet.data.recording import CalibrationRecording
+from sfmnet.data.row_file import RowBlock
+from sfmnet.data.streamed_calibration import StreamedRecording
+from sfmnet.errors import SfmnetError
+from sfmnet.linalg.anderson import AndersonAcceleration
+from sfmnet.linalg.factorisation import (
+    ellipsoid_from_coefficients,
+    metric_design,
+    metric_shape,
+    metric_unknowns,
+    require_coverage,
+)
+from sfmnet.linalg.frame import frame_rotation
+from sfmnet.linalg.moments import (
+    Moments,
+    cross_product,
+    principal_subspace,
+    singular_values_from_scatter,
+)
+from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
+from sfmnet.models.linear_calibrator import LinearCalibrator
+
+REFINEMENTS = ("alternation", "closed_form")
+
+
+class StreamedShapeFromMotion(LinearCalibrator):
+    """The closed form (paper eqs. 6-11, NOTES 2-4) and NOTES 5's alternation, each pass a sum over rows.
+
+    One trainer epoch is one pass over the file; what each pass adds up is all the next step needs:
+
+    1. ``count``, ``sum z`` and ``Z^T Z`` (float64, about a fixed shift; :class:`Moments`): the
+       truncated SVD of the (centred) readings is the eigendecomposition of their scatter,
+       ``Z*^T Z* = V Sigma^2 V^T``, so ``S^ = Sigma^(1/2) V^T`` and each row's affine motion is
+       ``m^ = (z - mean) V Sigma^(-1/2)`` (eq. 8). The pass also gathers the known-load rows
+       and a systematic sample of rows (for error bars and figures).
+    2. The metric constraint's normal equations, ``D^T D`` and ``D^T 1`` of the design
+       ``D = [quadratic(m^), m^]`` (eq. 11, NOTES 4), from the rows projected with pass 1's
+       subspace: ``Q`` and the ellipsoid's centre give ``S`` and ``o``, turned into the known
+       loads' frame by Procrustes (NOTES 3). This is the paper's closed form.
+    3. Each further pass is one alternation round (``refinement="alternation"``):
+       ``u_j = normalize(load of z_j)``, then ``[S; o] = solve(A, B)`` with ``A = [M 1]^T [M 1]``
+       and ``B = [M 1]^T Z`` summed over the pass, known loads as their rows' motion;
+       Anderson-accelerated across passes, stopped once a round moves the parameters by less
+       than ``tolerance`` (relative). The fixed point is the in-memory alternation's.
+
+    Every sum is over each row once, in float64, and reduced across processes by the
+    trainer's strategy, so one or several processes give the same numbers. Memory is
+    ``O(p^2 + sample_rows p)`` whatever the number of rows.
+
+    Args:
+        estimate_offset: learn channel offsets (ellipsoid closed form); else tared readings.
+        refinement: ``"alternation"`` (default) or ``"closed_form"`` (stop after pass 2).
+        tolerance: relative parameter change at which the alternation has converged.
+        sample_rows: rows kept (every ``k``-th) for the Cramer-Rao error bars and figures.
+        max_known_rows: known-load rows gathered in memory (a few are the point of the method).
+    """
+
+    name = "streamed_shape_from_motion"
+    recording = StreamedRecording.recording
+    streaming = True
+    dev_run_passes = 3  # moments, metric constraint, one alternation round
+    alternating = False
+    constrained = True
+
+    def __init__(
+        self,
+        estimate_offset: bool = True,
+        refinement: str = "alternation",
+        tolerance: float = 1e-9,
+        sample_rows: int = 100_000,
+        max_known_rows: int = 10_000,
+    ) -> None:
+        super().__init__(estimate_offset=estimate_offset)
+        if refinement not in REFINEMENTS:
+            raise SfmnetError(f"model.refinement is '{refinement}': use one of {', '.join(REFINEMENTS)}")
+        self.refinement = refinement
+        self.tolerance = tolerance
+        self.sample_rows = sample_rows
+        self.max_known_rows = max_known_rows
+        self.passes = 0
+        self.converged = False
+
+    @property
+    def rank(self) -> int:
+        return self.data.rank
+
+    def initialise(self, recording: StreamedRecording) -> None:
+        self.data = recording
+        n, p = recording.rank, len(recording.channels)
+        self.stride = math.ceil(recording.rows / self.sample_rows)
+        self.set_solution(
+            torch.zeros(n, p, dtype=torch.float64), torch.zeros(p, dtype=torch.float64),
+            torch.ones((), dtype=torch.float64), recording.magnitude,
+        )
+
+    # -- passes ---------------------------------------------------------------------------------
+
+    def begin_pass(self) -> None:
+        n, p = self.rank, len(self.data.channels)
+        if self.passes == 0:
+            self.moments = Moments.empty(self.data.shift)
+            self.known_rows: list[torch.Tensor] = []
+            self.first_partial_row = self.data.rows
+            self.sample = torch.zeros(math.ceil(self.data.rows / self.stride), p + n, dtype=torch.float64)
+        elif self.passes == 1:
+            m = metric_unknowns(n, self.estimate_offset)
+            self.metric_normal = torch.zeros(m, m, dtype=torch.float64)
+            self.metric_target = torch.zeros(m, dtype=torch.float64)
+        else:
+            k = n + self.estimate_offset
+            self.design_gram = torch.zeros(k, k, dtype=torch.float64)
+            self.design_readings = torch.zeros(k, p, dtype=torch.float64)
+            self.residual_squares = torch.zeros(p, dtype=torch.float64)
+
+    def accumulate(self, block: RowBlock) -> None:
+        """Add one block (readings minus the data's shift) to this pass's sums."""
+        if self.passes == 0:
+            self.accumulate_moments(block)
+        elif self.passes == 1:
+            design = metric_design(self.affine_motion(block.readings), self.estimate_offset)
+            self.metric_normal += cross_product(design)
+            self.metric_target += design.sum(dim=0)
+        else:
+            self.accumulate_alternation(block)
+
+    def accumulate_moments(self, block: RowBlock) -> None:
+        self.moments.add_shifted(block.readings)
+        given = torch.isfinite(block.loads)
+        known = given.all(dim=1)
+        partial = torch.nonzero(given.any(dim=1) & ~known)
+        if len(partial):
+            self.first_partial_row = min(self.first_partial_row, block.start + int(partial[0]))
+        rows = torch.arange(block.start, block.start + len(block.readings))
+        if known.any():
+            self.known_rows.append(torch.cat([rows[known, None].double(), block.readings[known], block.loads[known]], 1))
+        sampled = rows % self.stride == 0
+        self.sample[rows[sampled] // self.stride] = torch.cat([block.readings[sampled], block.loads[sampled]], dim=1)
+
+    def affine_motion(self, shifted: torch.Tensor) -> torch.Tensor:
+        """``m^ = (z - c) V Sigma^(-1/2)`` (eq. 8), ``b x n``, for readings minus the shift."""
+        return (shifted - (self.centre - self.data.shift)) @ self.projection
+
+    def accumulate_alternation(self, block: RowBlock) -> None:
+        centred = block.readings - (self.physical_offset() - self.data.shift)
+        known = torch.isfinite(block.loads).all(dim=1)
+        motion = self.motion_of_centred(centred)
+        motion = self.data.magnitude * motion / motion.norm(dim=1, keepdim=True)
+        motion[known] = block.loads[known]
+        self.residual_squares += (centred - motion @ self.physical_shape()).pow(2).sum(dim=0)
+        design = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if self.estimate_offset else motion
+        self.design_gram += cross_product(design)
+        self.design_readings += cross_product(design, block.readings if self.estimate_offset else block.readings + self.data.shift)
+
+    def motion_of_centred(self, centred: torch.Tensor) -> torch.Tensor:
+        return centred @ self.calibration_matrix().T
+
+    def reduce(self, strategy) -> None:
+        """Sum this pass's statistics over processes (each row was read by exactly one)."""
+        if self.passes == 0:
+            for name in ("count", "total", "cross"):
+                setattr(self.moments, name, strategy.reduce(getattr(self.moments, name), reduce_op="sum"))
+            self.sample = strategy.reduce(self.sample, reduce_op="sum")
+            self.first_partial_row = int(gather_by_rank(strategy, torch.tensor([float(self.first_partial_row)])).min())
+            self.known = gather_rows(strategy, self.known_rows, 1 + len(self.data.channels) + self.rank, self.max_known_rows)
+        elif self.passes == 1:
+            self.metric_normal = strategy.reduce(self.metric_normal, reduce_op="sum")
+            self.metric_target = strategy.reduce(self.metric_target, reduce_op="sum")
+        else:
+            for name in ("design_gram", "design_readings", "residual_squares"):
+                setattr(self, name, strategy.reduce(getattr(self, name), reduce_op="sum"))
+
+    @torch.no_grad()
+    def finalise(self) -> None:
+        if self.passes == 0:
+            self.solve_subspace()
+        elif self.passes == 1:
+            self.solve_metric()
+        elif not self.converged:
+            self.solve_alternation()
+        self.passes += 1
+
+    # -- solves -----------------------------------------------------------------------------------
+
+    def solve_subspace(self) -> None:
+        """Pass 1: the principal subspace of the readings (eqs. 6-8) and the known rows' checks."""
+        moments, data, n = self.moments, self.data, self.rank
+        if not bool(torch.isfinite(moments.cross).all()):
+            raise SfmnetError(
+                f"{data.layout.path} data row {data.first_non_finite_row()} (0-based) has a NaN, empty or infinite "
+                "channel cell: repair or drop that row"
+            )
+        if self.first_partial_row < data.rows:
+            raise SfmnetError(
+                f"{data.layout.path} data row {self.first_partial_row} (0-based) gives only some of "
+                f"{', '.join(data.load_columns)}: fill every load column on a known row, or none"
+            )
+        needed = metric_unknowns(n, self.estimate_offset)
+        if moments.count < needed:
+            raise SfmnetError(
+                f"only {int(moments.count)} samples for {needed} unknowns of the metric constraint: record at least "
+                f"{needed} orientations (dozens give a good calibration)"
+            )
+        self.check_known_magnitudes()
+        self.centre = moments.mean() if self.estimate_offset else torch.zeros_like(moments.shift)
+        scatter = moments.cross_about(self.centre)
+        self.singular_values = singular_values_from_scatter(scatter)
+        components, singular = principal_subspace(scatter, n)
+        if singular[-1] <= 1e-9 * singular[0]:
+            raise SfmnetError(
+                f"the readings span fewer than {n} dimensions: the loads are collinear or coplanar; turn the mass "
+                f"through orientations that span all {n} load axes"
+            )
+        self.affine_shape = singular.sqrt()[:, None] * components
+        self.projection = components.T / singular.sqrt()
+        self.reading_scale = (moments.centred_cross().trace() / moments.count).sqrt()
+
+    def check_known_magnitudes(self) -> None:
+        forces = self.known_loads()
+        off = first_magnitude_mismatch(
+            forces.numpy(), torch.full((len(forces),), self.data.magnitude).numpy(), self.data.known_load_tolerance
+        )
+        if off is not None:
+            raise SfmnetError(
+                f"the known load on data row {int(self.known[off, 0])} (0-based) of {self.data.layout.path} has magnitude "
+                f"{float(forces[off].norm()):.6g} but data.magnitude is {self.data.magnitude:.6g} "
+                f"({100 * self.data.known_load_tolerance:g} % allowed): the known loads must be the calibration mass; "
+                "check the load columns, units and mass"
+            )
+
+    def known_readings(self) -> torch.Tensor:
+        """``k x p`` raw readings of the known-load rows (in file order)."""
+        return self.known[:, 1 : 1 + len(self.data.channels)] + self.data.shift
+
+    def known_loads(self) -> torch.Tensor:
+        """``k x n``."""
+        return self.known[:, 1 + len(self.data.channels) :]
+
+    def solve_metric(self) -> None:
+        """Pass 2: the metric constraint (eq. 11, with the ellipsoid's centre for offsets), then the frame (NOTES 3)."""
+        n = self.rank
+        coefficients = torch.linalg.lstsq(self.metric_normal, self.metric_target[:, None]).solution[:, 0]
+        ellipsoid = ellipsoid_from_coefficients(coefficients, n, self.data.magnitude)
+        offset = self.centre + ellipsoid.centre @ self.affine_shape
+        self.store(metric_shape(self.affine_shape, ellipsoid.gram), offset)
+        matrix = self.calibration_matrix()
+        motion_gram = matrix @ self.moments.cross_about(offset) @ matrix.T
+        self.coverage = require_coverage(motion_gram, float(self.moments.count), self.data.magnitude)
+        self.orient()
+        self.acceleration = AndersonAcceleration(history=10)
+        self.converged = self.refinement == "closed_form"
+
+    def orient(self) -> None:
+        """Procrustes onto the known loads (mirror picked by the hint row with ``n - 1`` of them)."""
+        self.frame_fixed = len(self.known) > 0
+        if not self.frame_fixed:
+            return
+        hint = self.data.mirror_hint
+        hint_motion = self.motion_of(self.data.hint_reading[None]) if hint is not None else None
+        rotation = frame_rotation(self.motion_of(self.known_readings()), self.known_loads(), hint_motion, hint)
+        self.shape.copy_(rotation.T @ self.shape)
+
+    def solve_alternation(self) -> None:
+        """One alternation round from this pass's sums, Anderson-mixed with the rounds before."""
+        solution = torch.linalg.solve(self.design_gram, self.design_readings)
+        offset = solution[self.rank] + self.data.shift if self.estimate_offset else torch.zeros_like(self.data.shift)
+        mapped = self.dimensionless(solution[: self.rank], offset)
+        current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
+        mixed = self.acceleration.step(current, mapped)
+        self.shape.copy_(mixed[: self.rank])
+        self.offset.copy_(mixed[self.rank])
+        self.converged = self.acceleration.step_norm <= self.tolerance * float(current.norm())
+
+    def dimensionless(self, shape: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+        """``[S; o]`` (physical) in the parameters' units, ``(n + 1) x p``."""
+        return torch.cat([shape * self.load_scale / self.reading_scale, (offset / self.reading_scale)[None]])
+
+    def store(self, shape: torch.Tensor, offset: torch.Tensor) -> None:
+        """Write a physical solution into the parameters in place (the strategy holds them)."""
+        solution = self.dimensionless(shape, offset)
+        self.shape.copy_(solution[: self.rank])
+        self.offset.copy_(solution[self.rank])
+
+    # -- reporting --------------------------------------------------------------------------------
+
+    def monitor(self) -> dict[str, float]:
+        if self.passes <= 2:
+            return {}
+        return {
+            "train/residual_rms": float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt()),
+            "train/alternation_step": self.acceleration.step_norm,
+        }
+
+    @property
+    def fit_warnings(self) -> list[str]:
+        if self.converged:
+            return []
+        step = self.acceleration.step_norm
+        return [
+            (
+                f"the alternation had not converged after {self.passes} passes (last step {step:.1e}, "
+                f"relative tolerance {self.tolerance:g}): raise trainer.max_epochs"
+            )
+        ]
+
+    def report_recording(self, recording: StreamedRecording) -> CalibrationRecording:
+        """The sampled rows (every ``stride``-th) and the known-load rows, in memory, for error bars and figures."""
+        if self.passes < 2:
+            raise SfmnetError(
+                f"a streamed calibration needs two passes for its closed form (moments, then the metric constraint) "
+                f"but ran {self.passes}: set trainer.max_epochs to 2 or more"
+            )
+        p = len(self.data.channels)
+        sampled = self.sample[torch.isnan(self.sample[:, p:]).any(dim=1)]
+        return CalibrationRecording(
+            readings=torch.cat([sampled[:, :p] + self.data.shift, self.known_readings()]),
+            loads=torch.cat([sampled[:, p:], self.known_loads()]),
+            magnitude=self.data.magnitude,
+        )
+
+    def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
+        loads = self.motion_of(recording.readings[~recording.known])
+        n = self.rank
+        return loads / loads.norm(dim=1, keepdim=True), self.data.magnitude * torch.eye(n, dtype=loads.dtype).expand(len(loads), n, n)
+
+    def uncertainty(self, recording: CalibrationRecording, loads: torch.Tensor) -> CalibrationUncertainty:
+        """Cramer-Rao standard errors with the sampled rows standing for every unknown-load row.
+
+        The noise comes from the last alternation pass's residuals over every row (from the
+        sample, scaled, after the closed form alone).
+        """
+        directions, maps = self.unknown_directions(recording)
+        weight = (float(self.moments.count) - len(self.known)) / len(directions)
+        if self.passes > 2:
+            residual = float(self.residual_squares.sum())
+        else:
+            fitted = self.fitted_residuals(recording, loads).pow(2).sum(dim=1)
+            residual = float(fitted[~recording.known].sum()) * weight + float(fitted[recording.known].sum())
+        return calibration_uncertainty(
+            self.physical_shape(), loads[recording.known], directions, maps, self.estimate_offset,
+            residual_sum_of_squares=residual, observations=int(self.moments.count) * len(self.data.channels),
+            unknown_weight=weight,
+        )
+
+    def residual_rms(self, recording: CalibrationRecording) -> float:
+        """Exact over every row, from the moments: ``Z - o`` off the row space of ``S``."""
+        shape = self.physical_shape()
+        complement = torch.eye(shape.shape[1], dtype=shape.dtype) - shape.T @ torch.linalg.solve(shape @ shape.T, shape)
+        residual = torch.trace(complement @ self.moments.cross_about(self.physical_offset()) @ complement)
+        return float((residual.clamp_min(0) / (self.moments.count * shape.shape[1])).sqrt())
+
+
+def gather_by_rank(strategy, value: torch.Tensor) -> torch.Tensor:
+    """Every process's ``value`` (``k``), stacked ``world x k``, through the strategy's sum."""
+    world, rank = getattr(strategy, "world_size", 1), getattr(strategy, "global_rank", 0)
+    slots = torch.zeros(world, *value.shape, dtype=value.dtype)
+    slots[rank] = value
+    return strategy.reduce(slots, reduce_op="sum")
+
+
+def gather_rows(strategy, blocks: list[torch.Tensor], width: int, limit: int) -> torch.Tensor:
+    """Rows collected by every process (each a ``r x width`` list, first column the row index), sorted by that index.
+
+    Each process writes its rows into its own range of one buffer and the strategy sums the
+    buffers: exact, with no collective beyond the sum every statistic uses.
+    """
+    mine = torch.cat(blocks) if blocks else torch.zeros(0, width, dtype=torch.float64)
+    counts = gather_by_rank(strategy, torch.tensor([float(len(mine))]))[:, 0].long()
+    total = int(counts.sum())
+    if total > limit:
+        raise SfmnetError(
+            f"{total} rows have known loads (model.max_known_rows is {limit}): shape from motion needs only a few; "
+            "with every load known, fit least squares in memory (experiment=calibrate_csv model=least_squares)"
+        )
+    start = int(counts[: getattr(strategy, "global_rank", 0)].sum())
+    buffer = torch.zeros(total, width, dtype=torch.float64)
+    buffer[start : start + len(mine)] = mine
+    buffer = strategy.reduce(buffer, reduce_op="sum")
+    return buffer[torch.argsort(buffer[:, 0])]

@@ -1,0 +1,100 @@
+"""Calibration from streamed sums (NOTES 11): the in-memory answers, from blocks, on one or two processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hydra.utils import instantiate
+
+from sfmnet.training.run import train
+from tests.conftest import REPO, compose_config, write_session
+
+SESSION = ["data.magnitude=9.81", "data.time_column=time", "trainer.enable_progress_bar=false"]
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("session") / "session.csv"
+    write_session(path, known_loads=2)
+    return path
+
+
+def calibrate(session: Path, run_dir: Path, experiment: str, *overrides: str) -> tuple[dict, dict]:
+    hint = "data.mirror_hint={row: 0, axis: fz, sign: 1}"
+    metrics = train(compose_config([f"experiment={experiment}", f"data.path={session}", hint, *SESSION, *overrides]), run_dir)
+    return json.loads((run_dir / "calibration.json").read_text()), metrics
+
+
+def relative(a: list, b: list) -> float:
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.abs(a - b).max() / np.abs(b).max())
+
+
+def test_closed_form_from_sums_is_the_in_memory_closed_form(session: Path):
+    """Eigendecomposition of the scatter and normal equations in blocks against SVD and lstsq on the whole matrix."""
+    cfg = compose_config(["experiment=calibrate_csv", f"data.path={session}", "data.mirror_hint={row: 0, axis: fz, sign: 1}", *SESSION])
+    datamodule = instantiate(cfg.data)
+    datamodule.setup()
+    in_memory = instantiate(cfg.model)
+    in_memory.initialise(datamodule.data.recordings["rotation"])
+    streamed, _ = calibrate(session, session.parent / "closed", "calibrate_stream", "model.refinement=closed_form", "data.block_rows=37")
+    assert relative(streamed["matrix"], in_memory.calibration_matrix().tolist()) < 1e-9
+    assert relative(streamed["offset"], in_memory.physical_offset().tolist()) < 1e-9
+    assert relative(streamed["singular_values"], in_memory.singular_values.tolist()) < 1e-9
+
+
+def test_streamed_alternation_reaches_the_in_memory_fixed_point(session: Path, tmp_path: Path):
+    memory, memory_metrics = calibrate(session, tmp_path / "memory", "calibrate_csv", "model.refinement=alternation", "trainer.max_epochs=20")
+    streamed, metrics = calibrate(session, tmp_path / "stream", "calibrate_stream", "model.tolerance=1e-11", "data.block_rows=50")
+    assert relative(streamed["matrix"], memory["matrix"]) < 1e-7
+    assert relative(streamed["offset"], memory["offset"]) < 1e-7
+    assert streamed["frame"] == "known_loads" and not streamed["warnings"]
+    # Same rows, same Cramer-Rao bound; the noise differs only in which direction estimate leaves the residual.
+    assert relative(streamed["matrix_std"], memory["matrix_std"]) < 0.05
+    assert metrics["coverage"] == pytest.approx(memory_metrics["coverage"], rel=1e-9)
+    assert metrics["residual_rms"] == pytest.approx(memory_metrics["residual_rms"], rel=1e-9)
+    assert (tmp_path / "stream" / "figures" / "streamed_shape_from_motion_motion.png").stat().st_size > 10_000
+
+
+def test_a_sample_stands_for_every_row_in_the_error_bars(session: Path, tmp_path: Path):
+    every, _ = calibrate(session, tmp_path / "every", "calibrate_stream")
+    rows = sum(1 for _ in session.open()) - 1
+    quarter, _ = calibrate(session, tmp_path / "quarter", "calibrate_stream", f"model.sample_rows={rows // 4}")
+    assert relative(quarter["matrix"], every["matrix"]) < 1e-12
+    assert relative(quarter["matrix_std"], every["matrix_std"]) < 0.2
+
+
+def test_an_unconverged_alternation_says_so(session: Path, tmp_path: Path):
+    calibration, metrics = calibrate(session, tmp_path / "short", "calibrate_stream", "trainer.max_epochs=3")
+    assert metrics["epochs"] == 3
+    assert any("had not converged after 3 passes" in warning for warning in calibration["warnings"])
+
+
+def test_two_processes_give_the_same_calibration(session: Path, tmp_path: Path):
+    """DDP on the CPU (gloo): blocks dealt to two real processes, known rows gathered by a sum."""
+    single, _ = calibrate(session, tmp_path / "single", "calibrate_stream", "data.block_rows=40")
+    command = [
+        sys.executable, "-m", "sfmnet", "train", "experiment=calibrate_stream", f"data.path={session}",
+        "data.mirror_hint={row: 0, axis: fz, sign: 1}", f"hydra.run.dir={tmp_path / 'ddp'}", "trainer.devices=2",
+        "trainer.strategy=ddp", "data.block_rows=40", *SESSION,
+    ]
+    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300, check=False, env={**os.environ})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.count("run directory:") == 1
+    double = json.loads((tmp_path / "ddp" / "calibration.json").read_text())
+    for key in ("matrix", "offset", "matrix_std", "singular_values"):
+        assert relative(double[key], single[key]) <= 1e-10, key
+
+
+def test_block_size_does_not_change_the_answer(session: Path, tmp_path: Path):
+    small, _ = calibrate(session, tmp_path / "small", "calibrate_stream", "data.block_rows=7")
+    whole, _ = calibrate(session, tmp_path / "whole", "calibrate_stream")
+    assert relative(small["matrix"], whole["matrix"]) < 1e-10
+    assert torch.tensor(small["matrix"]).shape == (3, 6)
