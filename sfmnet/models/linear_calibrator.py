@@ -30,6 +30,10 @@ class LinearCalibrator(nn.Module, ABC):
         estimate_offset: learn ``o`` (else the readings are taken as tared, ``o = 0``).
         frame_fixed: False while the load frame is arbitrary (no known loads).
         coverage: see :func:`sfmnet.linalg.factorisation.motion_coverage`; NaN where it does not apply.
+
+    Models fitted by the trainer's steps also define ``loss(batch) -> dict`` of loss terms for a
+    batch ``(index, readings, loads)`` (:data:`Batch`), key ``"loss"`` minimised; models fitted from
+    streamed sums (``streaming = True``) define ``begin_pass``/``accumulate``/``reduce``/``finalise`` instead.
     """
 
     name: str
@@ -55,10 +59,6 @@ class LinearCalibrator(nn.Module, ABC):
     @abstractmethod
     def initialise(self, recording: CalibrationRecording) -> None:
         """Create the parameters from the closed-form solution: the first step of fitting."""
-
-    def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """Loss terms of one batch ``(index, readings, loads)``; key ``"loss"`` is minimised (models fitted by steps)."""
-        raise NotImplementedError(f"{type(self).__name__} is fitted from statistics, not by a loss")
 
     @property
     def fit_warnings(self) -> list[str]:

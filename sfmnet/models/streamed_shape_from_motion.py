@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from sfmnet.data.csv_calibration import first_magnitude_mismatch
@@ -225,9 +226,8 @@ class StreamedShapeFromMotion(LinearCalibrator):
 
     def check_known_magnitudes(self) -> None:
         forces = self.known_loads()
-        off = first_magnitude_mismatch(
-            forces.numpy(), torch.full((len(forces),), self.data.magnitude).numpy(), self.data.known_load_tolerance
-        )
+        magnitudes = np.full(len(forces), self.data.magnitude)
+        off = first_magnitude_mismatch(forces.numpy(), magnitudes, self.data.known_load_tolerance)
         if off is not None:
             raise SfmnetError(
                 f"the known load on data row {int(self.known[off, 0])} (0-based) of {self.data.layout.path} has magnitude "
