@@ -12,6 +12,15 @@ marginal likelihood with L-BFGS, and ``auto``, the default, which picks one of t
 third by the closed form's SNR; conf/optimizer/lbfgs.yaml). Run by hand:
 
     python bench/crb_ratio.py --trials 50 [--known-loads] [--refinements alternation marginal auto]
+
+``--laws``: instead, the orientation laws of the simulators (``data.orientation_law``: uniform,
+hemisphere, band near the equator, 60-degree cone, 12 poses) at each SNR, for n = 2 and 3, tared and
+with offsets (``offset_scale`` 0.1, estimated, the bound with offsets), no known loads. Columns: the
+closed form, the alternation, the marginal likelihood and auto against the bound, and the coverage of
+auto's error bars (fraction of calibration-matrix entries within one reported standard error of the
+truth, the frame aligned). Trials run in ``--processes`` processes of one thread each:
+
+    python bench/crb_ratio.py --laws --trials 50 --processes 2
 """
 
 from __future__ import annotations
@@ -27,8 +36,9 @@ from omegaconf import OmegaConf
 from sfmnet.cli import config_dir
 from sfmnet.data.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
 from sfmnet.linalg.frame import orthogonal_procrustes
-from sfmnet.linalg.uncertainty import shape_information
+from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
 from sfmnet.models.shape_from_motion import ShapeFromMotion
+from sfmnet.training.fitting import refine_in_process
 from sfmnet.training.learner_module import LearnerModule
 
 SENSORS = {
@@ -62,7 +72,7 @@ def trial(
     magnitude = recording.magnitude
     maps = magnitude * torch.eye(unknown.shape[1], dtype=unknown.dtype).expand(len(unknown), -1, -1)
     information = shape_information(truth, recording.true_loads[known], unknown / magnitude, maps, estimate_offset=False)
-    bound = noise_std**2 * float(torch.linalg.pinv(information, hermitian=True).diagonal().sum())
+    bound = noise_std**2 * float(torch.linalg.pinv(information, hermitian=True, rtol=GAUGE_RTOL).diagonal().sum())
     errors = []
     for refinement in refinements:
         model = ShapeFromMotion(estimate_offset=False, refinement=refinement)
@@ -77,12 +87,72 @@ def trial(
     return closed_form, *errors, bound
 
 
+LAWS = ("uniform", "hemisphere", "band", "cone", "poses")
+LAW_SENSORS = {2: (FingertipDataModule, {"magnitude": 111.4, "samples": 96}), 3: (ForceSensor3DataModule, {"magnitude": 9.81, "samples": 200})}
+OFFSET_SCALE = 0.1
+
+
+def law_trial(args: tuple) -> tuple[float, ...]:
+    """Squared shape errors of the closed form, alternation, marginal and auto, the bound, and auto's coverage counts."""
+    n, law, snr, offsets, seed, optimizer_cfg = args
+    torch.set_num_threads(1)
+    warnings.filterwarnings("ignore")
+    module_cls, kwargs = LAW_SENSORS[n]
+    datamodule = module_cls(
+        noise_fraction=1 / snr, known_loads=0, mirror_hint=False, offset_scale=OFFSET_SCALE if offsets else 0.0,
+        orientation_law=law, seed=seed, errors={"angle_error_deg": 0.0}, **kwargs,
+    )
+    datamodule.setup()
+    recording = datamodule.data.recordings["rotation"]
+    truth = torch.linalg.pinv(datamodule.data.truth.matrix.T)
+    noise_std = (1 / snr) * float(truth.norm(dim=0).mean()) * recording.magnitude
+    magnitude = recording.magnitude
+    maps = magnitude * torch.eye(n, dtype=truth.dtype).expand(len(recording.true_loads), -1, -1)
+    information = shape_information(truth, recording.true_loads[:0], recording.true_loads / magnitude, maps, estimate_offset=offsets)
+    bound = noise_std**2 * float(torch.linalg.pinv(information, hermitian=True, rtol=GAUGE_RTOL).diagonal()[: truth.numel()].sum())
+    fitted = {}
+    for refinement in ("alternation", "marginal"):
+        model = ShapeFromMotion(estimate_offset=offsets, refinement=refinement)
+        model.initialise(recording)
+        closed_form = error2(model.physical_shape(), truth, align=True)
+        fitted[refinement] = refine_in_process(model, recording, instantiate(optimizer_cfg), initialise=False)
+    chooser = ShapeFromMotion(estimate_offset=offsets)
+    chooser.initialise(recording)
+    auto = fitted[chooser.refinement]
+    alignment = orthogonal_procrustes(auto.physical_shape().T, truth.T).T
+    bars = auto.uncertainty(recording, auto.fitted_loads(recording)).matrix_std
+    within = ((alignment @ auto.calibration_matrix() - datamodule.data.truth.matrix).abs() < bars).sum()
+    errors = [error2(model.physical_shape(), truth, align=True) for model in fitted.values()]
+    return closed_form, *errors, errors[list(fitted).index(chooser.refinement)], bound, float(within), float(bars.numel())
+
+
+def law_table(trials: int, snrs: list[float], processes: int, optimizer_cfg) -> None:
+    """Print the ``--laws`` table as Markdown, one row at a time."""
+    import multiprocessing
+
+    print("| n | offsets | law | SNR | closed form / CRB | alternation / CRB | marginal / CRB | auto / CRB | auto 68 % coverage |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    with multiprocessing.get_context("spawn").Pool(processes) as pool:
+        for n in (2, 3):
+            for offsets in (False, True):
+                for law in LAWS:
+                    for snr in snrs:
+                        jobs = [(n, law, snr, offsets, seed, optimizer_cfg) for seed in range(trials)]
+                        results = torch.tensor(pool.map(law_trial, jobs))
+                        *errors, bound, within, entries = results.sum(dim=0)
+                        ratios = " | ".join(f"{float((e / bound).sqrt()):.2f}" for e in errors)
+                        coverage = float(within / entries)
+                        print(f"| {n} | {'yes' if offsets else 'no'} | {law} | {snr:g} | {ratios} | {coverage:.2f} |", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--snr", type=float, nargs="+", default=[100, 20, 5, 2])
     parser.add_argument("--known-loads", action="store_true", help="add n exact known loads (else none, as NOTES 5)")
     parser.add_argument("--refinements", nargs="+", default=list(REFINEMENTS), choices=REFINEMENTS)
+    parser.add_argument("--laws", action="store_true", help="the orientation-law table (see above)")
+    parser.add_argument("--processes", type=int, default=1, help="trial processes for --laws (one thread each)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     import logging
@@ -90,6 +160,9 @@ def main() -> None:
     logging.getLogger("lightning.pytorch").setLevel(logging.ERROR)
     torch.set_num_threads(1)
     optimizer_cfg = OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml")
+    if args.laws:
+        law_table(args.trials, args.snr, args.processes, optimizer_cfg)
+        return
     print("| sensor | SNR | closed form / CRB | " + " | ".join(f"{r} / CRB" for r in args.refinements) + " |")
     print("|---|---|" + "---|" * (len(args.refinements) + 1))
     for name, (module_cls, kwargs, rank) in SENSORS.items():

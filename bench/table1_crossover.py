@@ -2,8 +2,9 @@
 
 Runs ``python -m sfmnet train -m experiment=table1`` over one error parameter and several
 seeds (each seed is a new simulated sensor and session), then prints, for each value, the
-mean over seeds of each method's error and precision averaged over the five test masses, and
-how often shape from motion is at least as good. Run by hand:
+mean over seeds of each method's error and precision averaged over the five test masses (least
+squares in both forms: the paper's shape fit and the loads regressed on the readings), and how
+often shape from motion is at least as good as the better least-squares form of the same seed. Run by hand:
 
     python bench/table1_crossover.py data.errors.string_misalignment_deg=0,0.5,1,2,4
     python bench/table1_crossover.py data.errors.friction=0,0.003,0.01,0.03 --seeds 8
@@ -21,6 +22,8 @@ from collections import defaultdict
 from pathlib import Path
 
 MASSES = ["60.4", "78.3", "95.2", "111.4", "122.8"]
+# Column label -> metric prefix: shape from motion, least squares in the paper's form, the load regression.
+METHODS = {"SFM": "", "LS": "least_squares/", "Reg": "regression/"}
 
 
 def mean_over_masses(row: dict[str, str], prefix: str, figure: str) -> float:
@@ -28,25 +31,26 @@ def mean_over_masses(row: dict[str, str], prefix: str, figure: str) -> float:
 
 
 def summarise(rows: list[dict[str, str]], parameter: str) -> list[str]:
+    """One Markdown row per value: each method's error % and std dev (means over masses, then seeds) and how
+    many seeds shape from motion is at least as accurate (precise) as the better least-squares form in that seed."""
     groups: dict[str, list[dict[str, str]]] = defaultdict(list)
     for row in rows:
         groups[row[parameter]].append(row)
     lines = [
-        f"| {parameter} | SFM error % | LS error % | SFM std | LS std | SFM as accurate | SFM as precise |",
-        "|---|---|---|---|---|---|---|",
+        f"| {parameter} | SFM error % | LS error % | Reg error % | SFM std | LS std | Reg std "
+        "| SFM as accurate as the better LS | SFM as precise as the better LS |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for value in sorted(groups, key=float):
         group = groups[value]
-        sfm_err = [mean_over_masses(r, "", "error_pct") for r in group]
-        ls_err = [mean_over_masses(r, "least_squares/", "error_pct") for r in group]
-        sfm_std = [mean_over_masses(r, "", "std_dev") for r in group]
-        ls_std = [mean_over_masses(r, "least_squares/", "std_dev") for r in group]
-        accurate = sum(s <= l for s, l in zip(sfm_err, ls_err))
-        precise = sum(s <= l for s, l in zip(sfm_std, ls_std))
+        err = {m: [mean_over_masses(r, prefix, "error_pct") for r in group] for m, prefix in METHODS.items()}
+        std = {m: [mean_over_masses(r, prefix, "std_dev") for r in group] for m, prefix in METHODS.items()}
+        accurate = sum(s <= min(l, g) for s, l, g in zip(err["SFM"], err["LS"], err["Reg"]))
+        precise = sum(s <= min(l, g) for s, l, g in zip(std["SFM"], std["LS"], std["Reg"]))
         lines.append(
-            f"| {value} | {statistics.fmean(sfm_err):.3f} | {statistics.fmean(ls_err):.3f} | "
-            f"{statistics.fmean(sfm_std):.3f} | {statistics.fmean(ls_std):.3f} | "
-            f"{accurate}/{len(group)} | {precise}/{len(group)} |"
+            f"| {value} | " + " | ".join(f"{statistics.fmean(err[m]):.3f}" for m in METHODS) + " | "
+            + " | ".join(f"{statistics.fmean(std[m]):.3f}" for m in METHODS)
+            + f" | {accurate}/{len(group)} | {precise}/{len(group)} |"
         )
     return lines
 

@@ -14,8 +14,13 @@ from sfmnet.io import write_json_atomic
 
 
 def calibration_matrix(shape: torch.Tensor) -> torch.Tensor:
-    """``C = pinv(S)^T``, ``n x p``: the least-squares load of a reading, ``load = C (z - o)``."""
-    return torch.linalg.pinv(shape).T
+    """``C = pinv(S)^T = (S S^T)^-1 S``, ``n x p``: the least-squares load of a reading, ``load = C (z - o)``.
+
+    ``S`` (``n x p``) has full row rank. The normal-equations form, unlike an SVD, has a derivative
+    that stays exact when ``S``'s singular values are equal (an isotropic sensor, an accelerometer
+    triad), which the error bars' Jacobian needs.
+    """
+    return torch.linalg.solve(shape @ shape.T, shape)
 
 
 @dataclass

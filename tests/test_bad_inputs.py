@@ -15,12 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from sfmnet.apply import apply_calibration
 from sfmnet.cli import config_dir
 from sfmnet.config_check import check_overrides
 from sfmnet.data.ft_printed_sensor import FtPrintedSensorDataModule
 from sfmnet.data.row_file import RowFileDataModule
+from sfmnet.data.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.data.sensorimotor_csv import SensorimotorCsvDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
@@ -163,6 +165,21 @@ def unreadable_npy(tmp_path: Path) -> Action:
     return lambda: train(cfg, tmp_path / "run")
 
 
+def continuous(tmp_path: Path, poses: int, known_in_motion: bool = False) -> Action:
+    """A continuous recording (sfmnet/data/simulated_stream.py) calibrated with its time column (static intervals on)."""
+    generator = torch.Generator().manual_seed(0)
+    sensor = stream_sensor(6, 9.81, noise_fraction=0.001, offset_scale=0.2, generator=generator)
+    recording = simulate_stream(sensor, 1.0, poses=poses, rate=50.0, generator=generator)
+    if known_in_motion:
+        # A load written on line 42 (data row 40), in the middle of the first move.
+        recording.known_loads[40] = recording.loads[40]
+    write_stream_csv(recording, tmp_path / "stream.csv")
+    cfg = compose_config([
+        "experiment=calibrate_csv", f"data.path={tmp_path / 'stream.csv'}", "data.mass=1.0", "data.time_column=time",
+    ])
+    return lambda: train(cfg, tmp_path / "run")
+
+
 def simulated(*overrides: str) -> Callable[[Path], Action]:
     return lambda tmp_path: (lambda: train(compose_config(list(overrides)), tmp_path / "run"))
 
@@ -187,6 +204,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "n-1 known loads without the mirror bit": (lambda t: calibrate(t, known_loads=2), r"only up to a mirror image: set data.mirror_hint="),
     "non-existent path": (lambda t: (lambda: train(compose_config(["experiment=calibrate_csv", f"data.path={t / 'nope.csv'}", "data.magnitude=9.81"]), t / "run")), r"nope.csv does not exist: check data.path"),
     "unreadable file": (unreadable_npy, r"cannot be read as .npy"),
+    "too few static intervals": (lambda t: continuous(t, poses=6), r"6 static intervals found but a 3-axis calibration with offsets needs at least 9"),
+    "known load in motion": (lambda t: continuous(t, poses=10, known_in_motion=True), r"the known load on line 42 of .*stream.csv was recorded in motion"),
     # train, a calibration streamed from its file (conf/data/calibration_rows.yaml)
     "stream: partly known load": (lambda t: stream(t, edit=blank_last_load), r"data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"),
     "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"data row 5 \(0-based\) has a NaN, empty or infinite channel cell"),

@@ -118,11 +118,13 @@ def test_six_axis_csv_names_a_configuration_without_mass(tmp_path: Path):
 def test_real_sensor_three_known_poses_beside_least_squares(run_dir: Path):
     """The real recordings (../shared/data/ft_printed_sensor), configuration 0, leave one pose out.
 
-    Measured: shape from motion 0.55 N RMS with three known poses, least squares 0.26 N with
-    every pose known (README). The bounds catch a regression, not a tuned pass.
+    Measured: shape from motion 0.54 N RMS with three known poses, least squares 0.26 N with
+    every pose known, the loads regressed on the readings 0.95 N (README). The bounds catch a
+    regression, not a tuned pass.
     """
     metrics = train(compose_config(["experiment=ft_printed_sensor"]), run_dir)
     assert metrics["lopo/force_rms"] < 0.8
     assert metrics["least_squares/lopo/force_rms"] < 0.35
+    assert metrics["regression/lopo/force_rms"] < 1.2
     assert (run_dir / "figures" / "leave_one_group_out.png").is_file()
-    assert len((run_dir / "leave_one_group_out.csv").read_text().splitlines()) == 1 + 2 * 9
+    assert len((run_dir / "leave_one_group_out.csv").read_text().splitlines()) == 1 + 3 * 9

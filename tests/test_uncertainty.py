@@ -2,38 +2,25 @@
 
 from __future__ import annotations
 
+import functools
+
 import pytest
 import torch
 
 from sfmnet.data.simulated_sensor import ForceSensor3DataModule
 from sfmnet.models.shape_from_motion import ShapeFromMotion
+from sfmnet.training.fitting import refine_in_process
 
 
 def refined(
     model: ShapeFromMotion, recording, initialise: bool = True, epochs: int = 10, tolerance_change: float = 1e-14
 ) -> ShapeFromMotion:
-    """The closed form, then the refinement the trainer runs: the model's alternation, or L-BFGS (conf/optimizer/lbfgs.yaml)."""
-    if initialise:
-        model.initialise(recording)
-    batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
-    if model.alternating:
-        for _ in range(epochs):
-            model.alternate(batch)
-        return model
-    optimizer = torch.optim.LBFGS(
-        [p for p in model.parameters() if p.requires_grad],
-        max_iter=50, history_size=50, line_search_fn="strong_wolfe", tolerance_grad=1e-10, tolerance_change=tolerance_change,
+    """The closed form, then the refinement the trainer runs (conf/optimizer/lbfgs.yaml's L-BFGS), in this process."""
+    optimizer = functools.partial(
+        torch.optim.LBFGS, max_iter=50, history_size=50, line_search_fn="strong_wolfe", tolerance_grad=1e-10,
+        tolerance_change=tolerance_change,
     )
-
-    def closure() -> torch.Tensor:
-        optimizer.zero_grad()
-        loss = model.loss(batch)["loss"]
-        loss.backward()
-        return loss
-
-    for _ in range(epochs):
-        optimizer.step(closure)
-    return model
+    return refine_in_process(model, recording, optimizer, epochs, initialise)
 
 
 @pytest.mark.parametrize("channels", [6, 16])

@@ -9,6 +9,7 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
+from sfmnet.data.static_rows import fitted_rows, static_settings
 from sfmnet.data.table_file import Table, check_finite, read_table
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
@@ -26,8 +27,11 @@ class CsvCalibrationDataModule(CalibrationDataModule):
     Args:
         path: the file.
         load_columns: the ``n`` load columns, e.g. ``[fx, fy, fz]``; their names become the axes.
+            Empty (no known loads): give ``axes``; the frame is then arbitrary (correct up to an
+            orthogonal transform, which leaves every load's magnitude right).
+        axes: the ``n`` load axis names when ``load_columns`` is empty (e.g. ``[x, y, z]``).
         channel_columns: raw channel columns (default: every other numeric column but ``time_column``).
-        time_column: a column to ignore, e.g. a timestamp.
+        time_column: the rows' time (not a channel); with it the static intervals are found.
         columns: names of a ``.npy`` file's columns.
         magnitude: the load magnitude (load units); or give ``mass``.
         mass: the calibration mass in kg; the magnitude is ``mass * 9.80665`` N.
@@ -42,12 +46,20 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         group_column: a column grouping rows (e.g. the pose they were recorded in) for
             leave-one-group-out evaluation.
         gravity: m/s^2, for ``mass`` and ``configurations``.
+        static_intervals: leave out the rows in motion of a continuous recording
+            (:mod:`sfmnet.data.static_rows`): None: with a ``time_column``; True: also without
+            one (row order); False: fit every row.
+        held_out_intervals: fit on every other static interval (or group) and keep the rest as
+            ``test``, scored by how far each held-out interval's mean load is from ``magnitude``.
+        time_unit: ``time_column``'s unit: ``s``, ``ms``, ``us`` or ``ns``.
+        static: the detector's settings (``window``, ``min_duration``, ``threshold``, ``noise_quantile``).
     """
 
     def __init__(
         self,
         path: str,
         load_columns: list[str],
+        axes: list[str] | None = None,
         channel_columns: list[str] | None = None,
         time_column: str | None = None,
         columns: list[str] | None = None,
@@ -61,10 +73,15 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         group_column: str | None = None,
         gravity: float = STANDARD_GRAVITY,
         batch_size: int | None = None,
+        static_intervals: bool | None = None,
+        time_unit: str = "s",
+        static: dict | None = None,
+        held_out_intervals: bool = False,
     ) -> None:
         super().__init__(batch_size=batch_size)
         self.path = Path(path)
         self.load_columns = list(load_columns)
+        self.axes = load_axes(self.load_columns, axes)
         self.channel_columns = list(channel_columns) if channel_columns else None
         self.time_column = time_column
         self.columns = columns
@@ -77,6 +94,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         self.configurations = configurations
         self.group_column = group_column
         self.gravity = gravity
+        self.held_out_intervals = held_out_intervals
+        self.static = static_settings(static_intervals, time_column, time_unit, static)
 
     def build(self) -> CalibrationData:
         table = read_table(self.path, self.columns)
@@ -85,9 +104,9 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         # Numeric columns with a few bad cells stay in, so their cells are reported, not skipped.
         candidates = [name for name in [*table.columns, *table.text] if name in table.columns or name in table.corrupt]
         channels = self.channel_columns or [name for name in candidates if name not in excluded]
-        if len(channels) < len(self.load_columns):
+        if len(channels) < len(self.axes):
             raise SfmnetError(
-                f"{len(channels)} channel columns for {len(self.load_columns)} load axes: a calibration needs at "
+                f"{len(channels)} channel columns for {len(self.axes)} load axes: a calibration needs at "
                 "least as many channels as axes; list them with data.channel_columns=[...]"
             )
         readings = table.numeric(channels, "channel")
@@ -98,7 +117,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 f"channel {', '.join(constant)} of {self.path} is constant: it carries no load information; "
                 "leave it out with data.channel_columns=[...]"
             )
-        loads = table.numeric(self.load_columns, "load")
+        loads = table.numeric(self.load_columns, "load") if self.load_columns else np.full((len(readings), len(self.axes)), np.nan)
         loads[~np.isfinite(loads)] = np.nan
         partial = np.isnan(loads).any(axis=1) & ~np.isnan(loads).all(axis=1)
         if partial.any():
@@ -109,13 +128,26 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         groups = None
         if self.group_column:
             groups = torch.from_numpy(np.unique(table.numeric([self.group_column], "group")[:, 0], return_inverse=True)[1])
+        detection, keep = None, np.ones(len(readings), dtype=bool)
+        if self.static is not None:
+            time = table.numeric([self.time_column], "time")[:, 0] * self.static.time_scale if self.time_column else None
+            detection = self.static.detect(readings, time)
+            known = np.nonzero(~np.isnan(loads).any(axis=1))[0]
+            keep = fitted_rows(
+                detection, known, len(self.axes), lambda row: f"line {row + 2} of {self.path}",
+                check_count=not self.configuration_column,
+            )
+            if groups is None and not detection.independent:
+                groups = torch.from_numpy(detection.interval_of_rows())
+        rows = torch.from_numpy(keep)
+        groups = None if groups is None else groups[rows]
         if self.configuration_column:
             configuration, maps = self.parse_configurations(table)
             self.check_known_magnitudes(loads[:, :3], (maps[:, 0, 0].numpy())[configuration.numpy()])
             recording = CalibrationRecording(
-                readings=torch.from_numpy(readings),
-                loads=torch.from_numpy(loads),
-                configuration=configuration,
+                readings=torch.from_numpy(readings)[rows],
+                loads=torch.from_numpy(loads)[rows],
+                configuration=configuration[rows],
                 direction_maps=maps,
                 groups=groups,
             )
@@ -123,15 +155,29 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             magnitude = calibration_magnitude(self.magnitude, self.mass, self.gravity)
             self.check_known_magnitudes(loads, np.full(len(loads), magnitude))
             recording = CalibrationRecording(
-                readings=torch.from_numpy(readings),
-                loads=torch.from_numpy(loads),
+                readings=torch.from_numpy(readings)[rows],
+                loads=torch.from_numpy(loads)[rows],
                 magnitude=magnitude,
-                mirror_hint=self.parse_mirror_hint(loads),
+                mirror_hint=self.parse_mirror_hint(loads, keep),
                 groups=groups,
             )
+        test = None
+        if self.held_out_intervals:
+            recording, test = self.hold_out_alternate_groups(recording)
         return CalibrationData(
-            recordings={"rotation": recording}, channels=channels, axes=self.load_columns, load_unit=self.load_unit
+            recordings={"rotation": recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
+            static_intervals=detection, test=test,
         )
+
+    def hold_out_alternate_groups(self, recording: CalibrationRecording) -> tuple[CalibrationRecording, CalibrationRecording]:
+        """Intervals (groups) 0, 2, 4, ... to fit, 1, 3, 5, ... held out (their known loads, if any, stay in the fit)."""
+        if recording.groups is None or self.configuration_column or self.mirror_hint is not None:
+            raise SfmnetError(
+                "data.held_out_intervals needs static intervals (a time_column) or a group_column, one mass, and no "
+                "mirror_hint"
+            )
+        held_out = (recording.groups % 2 == 1) & ~recording.known
+        return recording.without(held_out), recording.without(~held_out)
 
     def check_known_magnitudes(self, forces: np.ndarray, magnitudes: np.ndarray) -> None:
         """Known (force) loads must have their row's mass's magnitude: they are that mass in a known pose."""
@@ -173,14 +219,30 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         configuration = torch.from_numpy(np.searchsorted(np.array(used), ids))
         return configuration, torch.stack(maps)
 
-    def parse_mirror_hint(self, loads: np.ndarray) -> MirrorHint | None:
+    def parse_mirror_hint(self, loads: np.ndarray, keep: np.ndarray) -> MirrorHint | None:
+        """The hint on data row ``row``, as the index of its sample among the fitted (``keep``) unknown rows."""
         if self.mirror_hint is None:
             return None
         row, axis, sign = mirror_hint_fields(self.mirror_hint, self.load_columns)
-        unknown = np.isnan(loads).any(axis=1)
+        unknown = np.isnan(loads).any(axis=1) & keep
         if not 0 <= row < len(loads) or not unknown[row]:
-            raise SfmnetError(f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown")
+            raise SfmnetError(
+                f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown, in a static interval"
+            )
         return MirrorHint(sample=int(unknown[:row].sum()), axis=axis, sign=sign)
+
+
+def load_axes(load_columns: list[str], axes: list[str] | None) -> list[str]:
+    """The ``n`` load axis names: the load columns, or ``axes`` when no load is known."""
+    if load_columns and axes and list(axes) != list(load_columns):
+        raise SfmnetError("data.axes names the load axes only when data.load_columns is empty: drop one of them")
+    names = list(load_columns) or list(axes or [])
+    if not names:
+        raise SfmnetError(
+            "no load axes: give the known loads' columns (data.load_columns=[fx,fy,fz]) or, with no known load, "
+            "name the axes (data.load_columns=[] data.axes=[x,y,z])"
+        )
+    return names
 
 
 def calibration_magnitude(magnitude: float | None, mass: float | None, gravity: float) -> float:

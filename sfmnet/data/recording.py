@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, replace
 import torch
 
 from sfmnet.linalg.frame import MirrorHint
+from sfmnet.preprocessing.static_intervals import StaticIntervals
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,8 @@ class CalibrationData:
         axes: the ``n`` load axis names.
         load_unit: e.g. ``"gf"`` or ``"N"``.
         truth: the true calibration, where the data is simulated.
+        static_intervals: where a continuous recording was static (its other rows are left out of
+            the recordings), or None where every row was taken as static.
     """
 
     recordings: dict[str, CalibrationRecording]
@@ -125,6 +128,7 @@ class CalibrationData:
     evaluations: list[EvaluationSweep] = field(default_factory=list)
     test: CalibrationRecording | None = None
     truth: SensorTruth | None = None
+    static_intervals: StaticIntervals | None = None
 
     def without_group(self, group: int) -> CalibrationData:
         """The data with every recording's rows of ``group`` removed (for leave-one-group-out)."""

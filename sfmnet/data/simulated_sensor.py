@@ -36,7 +36,11 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         mirror_hint: name one unknown sample's rough direction (see :class:`MirrorHint`).
         motion_span: how many load axes the unknown orientations cover (default all; fewer
             simulates a session that cannot calibrate: collinear or coplanar loads).
-        orientation_bias: crowd the orientations towards the last axis (0: uniform).
+        orientation_bias: crowd the orientations towards the last axis (0: none).
+        orientation_law: how the unknown orientations are spread: ``"uniform"``, ``"hemisphere"``,
+            ``"band"`` (near the equator), ``"cone"`` (within 60 degrees of the last axis) or
+            ``"poses"`` (a few poses, many samples each); see :func:`sfmnet.data.simulation.oriented_directions`.
+        poses: the number of poses of the ``"poses"`` law.
         noise_fraction: electrical noise std as a fraction of a channel's full-load signal.
         offset_scale: std of the channel offsets (raw units); 0 gives tared readings.
         errors: the load-application error model (a :class:`LoadApplicationErrors` or its fields).
@@ -59,6 +63,8 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         mirror_hint: bool = True,
         motion_span: int | None = None,
         orientation_bias: float = 0.0,
+        orientation_law: str = "uniform",
+        poses: int = 12,
         noise_fraction: float = 0.01,
         offset_scale: float = 0.0,
         errors: LoadApplicationErrors | dict | None = None,
@@ -77,6 +83,8 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         self.mirror_hint = mirror_hint
         self.motion_span = motion_span
         self.orientation_bias = orientation_bias
+        self.orientation_law = orientation_law
+        self.poses = poses
         self.noise_fraction = noise_fraction
         self.offset_scale = offset_scale
         self.errors = errors if isinstance(errors, LoadApplicationErrors) else LoadApplicationErrors(**(errors or {}))
@@ -110,6 +118,8 @@ class SimulatedSensorDataModule(CalibrationDataModule):
                 generator=generator,
                 motion_span=self.motion_span,
                 orientation_bias=self.orientation_bias,
+                orientation_law=self.orientation_law,
+                poses=self.poses,
             )
         }
         if self.least_squares_masses:

@@ -67,6 +67,55 @@ def random_directions(count: int, dims: int, generator: torch.Generator) -> torc
     return vectors / vectors.norm(dim=1, keepdim=True)
 
 
+ORIENTATION_LAWS = ("uniform", "hemisphere", "band", "cone", "poses")
+# Half-width of the "band" law (latitude, degrees) and half-angle of the "cone" law (degrees).
+BAND_HALF_WIDTH_DEG = 30.0
+CONE_HALF_ANGLE_DEG = 60.0
+
+
+def oriented_directions(law: str, count: int, dims: int, generator: torch.Generator, poses: int = 12) -> torch.Tensor:
+    """``count x dims`` unit load directions drawn from an orientation law, the last axis "up".
+
+    On the sphere (``dims = 3``), with ``z`` the last component:
+
+    - ``"uniform"``: the whole sphere;
+    - ``"hemisphere"``: uniform with ``z >= 0`` (a robot that keeps the mass below the sensor);
+    - ``"band"``: uniform within ``BAND_HALF_WIDTH_DEG`` of the equator, ``|z| <= sin 30deg``;
+    - ``"cone"``: uniform within ``CONE_HALF_ANGLE_DEG`` of the last axis, ``z >= cos 60deg``;
+    - ``"poses"``: ``poses`` uniform directions drawn once, each held for ``count / poses``
+      samples in turn (a robot or hand visiting a few poses, many samples each).
+
+    Uniform over a zone of the sphere means ``z`` uniform on its interval (Archimedes) and the
+    azimuth uniform. On the circle (``dims = 2``) the same laws are arcs of the angle from the
+    first axis: the half circle ``y >= 0``, the two arcs within 30 degrees of the ``x`` axis, the
+    arc within 60 degrees of ``+y``, and ``poses`` angles.
+    """
+    if law not in ORIENTATION_LAWS:
+        raise ValueError(f"orientation law '{law}': use one of {', '.join(ORIENTATION_LAWS)}")
+    if law == "uniform" or dims not in (2, 3):
+        return random_directions(count, dims, generator)
+    if law == "poses":
+        if count < poses:
+            raise ValueError(f"{count} samples cannot visit {poses} poses")
+        return random_directions(poses, dims, generator).repeat_interleave(math.ceil(count / poses), dim=0)[:count]
+    uniform = torch.rand(count, generator=generator, dtype=DTYPE)
+    band = math.sin(math.radians(BAND_HALF_WIDTH_DEG))
+    cone = math.cos(math.radians(CONE_HALF_ANGLE_DEG))
+    if dims == 3:
+        low, high = {"hemisphere": (0.0, 1.0), "band": (-band, band), "cone": (cone, 1.0)}[law]
+        z = low + (high - low) * uniform
+        azimuth = 2 * math.pi * torch.rand(count, generator=generator, dtype=DTYPE)
+        radius = (1 - z**2).sqrt()
+        return torch.stack([radius * azimuth.cos(), radius * azimuth.sin(), z], dim=1)
+    half_width = {"hemisphere": math.pi / 2, "band": math.radians(BAND_HALF_WIDTH_DEG), "cone": math.radians(CONE_HALF_ANGLE_DEG)}[law]
+    centre = {"hemisphere": math.pi / 2, "band": 0.0, "cone": math.pi / 2}[law]
+    angle = centre + half_width * (2 * uniform - 1)
+    if law == "band":
+        # Either end of the x axis.
+        angle = angle + math.pi * (torch.rand(count, generator=generator, dtype=DTYPE) < 0.5)
+    return torch.stack([angle.cos(), angle.sin()], dim=1)
+
+
 def perturb_directions(directions: torch.Tensor, std_rad: float, generator: torch.Generator) -> torch.Tensor:
     """Tilt each unit vector by a random tangent step of std ``std_rad`` (radians)."""
     if std_rad == 0:
@@ -120,13 +169,16 @@ def rotation_recording(
     generator: torch.Generator,
     motion_span: int | None = None,
     orientation_bias: float = 0.0,
+    orientation_law: str = "uniform",
+    poses: int = 12,
 ) -> CalibrationRecording:
     """One mass turned through ``samples`` unknown orientations, then ``known_loads`` loads along the first axes.
 
-    ``motion_span`` (default ``n``) limits the unknown orientations to the first that many
+    The orientations follow ``orientation_law`` (:func:`oriented_directions`, ``poses`` for the
+    ``"poses"`` law). ``motion_span`` (default ``n``) limits the unknown orientations to the first that many
     axes: 1 gives collinear loads, 2 coplanar ones (a session that cannot calibrate).
     ``orientation_bias`` > 0 crowds the orientations towards the last axis (1: most loads
-    within 60 degrees of it), as when an arm cannot turn the sensor upside down.
+    within 60 degrees of it, from the uniform law), as when an arm cannot turn the sensor upside down.
 
     The unknown rows come first; the known ones (axis-aligned, set on a stage) follow.
     With ``mirror_hint``, the unknown sample whose load leans furthest along the last axis
@@ -134,7 +186,7 @@ def rotation_recording(
     """
     n = sensor.shape.shape[0]
     masses = torch.full((samples,), true_magnitude, dtype=DTYPE)
-    directions = random_directions(samples, n, generator)
+    directions = oriented_directions(orientation_law, samples, n, generator, poses)
     directions[:, -1] += orientation_bias
     directions[:, (motion_span or n) :] = 0
     directions = directions / directions.norm(dim=1, keepdim=True)

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from sfmnet.data.csv_calibration import calibration_magnitude, mirror_hint_fields
+from sfmnet.data.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields
 from sfmnet.data.recording import CalibrationData
-from sfmnet.data.row_file import RowData, RowFileDataModule, column_index, mapped_rows
+from sfmnet.data.row_file import NpyLayout, RowData, RowFileDataModule, column_index, mapped_rows
+from sfmnet.data.static_rows import fitted_rows, static_settings
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
+from sfmnet.preprocessing.static_intervals import CHUNK_ROWS, StaticIntervals
 
 
 @dataclass
@@ -25,18 +27,21 @@ class StreamedRecording(RowData):
         known_load_tolerance: relative disagreement allowed between a known load's magnitude and ``F``.
         mirror_hint: which side of the mirror the row ``hint_reading`` lies on (``sample`` unused), or None.
         hint_reading: ``p`` raw readings of the mirror hint's row.
+        keep: ``f`` bool, the rows fitted (the static intervals of a continuous recording); None: all.
     """
 
     magnitude: float = math.nan
     known_load_tolerance: float = 0.02
     mirror_hint: MirrorHint | None = None
     hint_reading: torch.Tensor | None = None
+    keep: np.ndarray | None = None
+    axes: list[str] = field(default_factory=list)
 
     recording = "streamed_rotation"
 
     @property
     def rank(self) -> int:
-        return len(self.load_columns)
+        return len(self.axes)
 
 
 class StreamedCalibrationDataModule(RowFileDataModule):
@@ -50,22 +55,26 @@ class StreamedCalibrationDataModule(RowFileDataModule):
 
     Args:
         path: ``.npy`` or ``.csv`` (header row).
-        load_columns: the ``n`` load columns.
+        load_columns: the ``n`` load columns; empty when no load is known (then name the ``axes``).
+        axes: the ``n`` load axis names when ``load_columns`` is empty.
         magnitude: the load magnitude (load units); or give ``mass`` (kg).
         channel_columns: raw channels (default: every column but the loads and ``time_column``).
-        time_column: a column to ignore.
+        time_column: the rows' time (not a channel); with it the static intervals are found.
         columns: names of a ``.npy``'s columns.
         mirror_hint: ``{row: <data row, 0-based>, axis: <load column>, sign: <+1|-1>}``, with ``n - 1`` known loads.
         known_load_tolerance: see :class:`StreamedRecording`.
         load_unit: for reports.
         gravity: m/s^2, for ``mass``.
         block_rows, cache_dir: see :class:`RowFileDataModule`.
+        static_intervals, time_unit, static: see :class:`~sfmnet.data.csv_calibration.CsvCalibrationDataModule`;
+            detected in chunks through the memory map (memory: a byte per row for the mask).
     """
 
     def __init__(
         self,
         path: str,
         load_columns: list[str],
+        axes: list[str] | None = None,
         magnitude: float | None = None,
         mass: float | None = None,
         channel_columns: list[str] | None = None,
@@ -77,9 +86,13 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         gravity: float = STANDARD_GRAVITY,
         block_rows: int | None = None,
         cache_dir: str | None = None,
+        static_intervals: bool | None = None,
+        time_unit: str = "s",
+        static: dict | None = None,
     ) -> None:
         super().__init__(path, columns=columns, channel_columns=channel_columns, block_rows=block_rows, cache_dir=cache_dir)
         self.load_columns = list(load_columns)
+        self.axes = load_axes(self.load_columns, axes)
         self.magnitude = magnitude
         self.mass = mass
         self.time_column = time_column
@@ -87,34 +100,79 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         self.known_load_tolerance = known_load_tolerance
         self.load_unit = load_unit
         self.gravity = gravity
+        self.static = static_settings(static_intervals, time_column, time_unit, static)
 
     def build(self) -> CalibrationData:
         magnitude = calibration_magnitude(self.magnitude, self.mass, self.gravity)
         layout, names = self.open_rows()
         load_index = column_index(names, self.load_columns, "load", self.path)
         channels = self.channel_columns or [n for n in names if n not in self.load_columns and n != self.time_column]
-        if len(channels) < len(self.load_columns):
+        if len(channels) < len(self.axes):
             raise SfmnetError(
-                f"{len(channels)} channel columns for {len(self.load_columns)} load axes: a calibration needs at "
+                f"{len(channels)} channel columns for {len(self.axes)} load axes: a calibration needs at "
                 "least as many channels as axes; list them with data.channel_columns=[...]"
             )
         recording = self.row_data(
             layout, names, channels, StreamedRecording,
-            load_columns=self.load_columns, load_index=load_index, magnitude=magnitude,
+            load_columns=self.load_columns, load_index=load_index, magnitude=magnitude, axes=self.axes,
             known_load_tolerance=self.known_load_tolerance,
         )
+        detection = self.find_static_rows(recording, names) if self.static is not None else None
         if self.mirror_hint is not None:
             self.read_mirror_hint(recording)
         return CalibrationData(
-            recordings={recording.recording: recording}, channels=channels, axes=self.load_columns, load_unit=self.load_unit
+            recordings={recording.recording: recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
+            static_intervals=detection,
         )
+
+    def find_static_rows(self, recording: StreamedRecording, names: list[str]) -> StaticIntervals:
+        """Detect the static intervals chunk by chunk and set ``recording.keep`` (unless the rows are independent poses)."""
+        bad = recording.first_non_finite_row()
+        if bad is not None:
+            raise SfmnetError(f"{self.path} data row {bad} (0-based) has a NaN, empty or infinite channel cell: repair or drop that row")
+        layout = recording.layout
+        time = None
+        if self.time_column:
+            time = MappedColumns(layout, column_index(names, [self.time_column], "time", self.path), self.static.time_scale, vector=True)
+        detection = self.static.detect(MappedColumns(layout, recording.channel_index), time)
+        known = []
+        loads = MappedColumns(layout, recording.load_index)
+        for start in range(0, recording.rows if recording.load_index else 0, CHUNK_ROWS):
+            known.append(start + np.nonzero(np.isfinite(loads[start : start + CHUNK_ROWS]).all(axis=1))[0])
+        where = (lambda row: f"line {row + 2} of {self.path}") if self.path.suffix != ".npy" else (lambda row: f"data row {row} (0-based) of {self.path}")
+        keep = fitted_rows(detection, np.concatenate(known) if known else np.zeros(0, dtype=int), recording.rank, where)
+        if not detection.independent:
+            recording.keep = keep
+        return detection
 
     def read_mirror_hint(self, recording: StreamedRecording) -> None:
         """The hint's row, read from the file alone (one row through the memory map)."""
         row, axis, sign = mirror_hint_fields(self.mirror_hint, self.load_columns)
         values = np.asarray(mapped_rows(recording.layout, row, 1), dtype=np.float64)[0] if 0 <= row < recording.rows else None
-        if values is None or np.isfinite(values[recording.load_index]).any():
-            raise SfmnetError(f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown")
+        if values is None or np.isfinite(values[recording.load_index]).any() or (recording.keep is not None and not recording.keep[row]):
+            raise SfmnetError(
+                f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown, in a static interval"
+            )
         recording.mirror_hint = MirrorHint(sample=0, axis=axis, sign=sign)
         recording.hint_reading = torch.from_numpy(values[recording.channel_index])
 
+
+
+class MappedColumns:
+    """Some columns of a ``.npy`` row file, sliced by rows through a memory map of just those rows (float64, times ``scale``).
+
+    ``vector``: one column read as ``f`` values (a time column), else ``f x c``: what the static-interval detector takes.
+    """
+
+    def __init__(self, layout: NpyLayout, index: list[int], scale: float = 1.0, vector: bool = False) -> None:
+        self.layout = layout
+        self.index = index
+        self.scale = scale
+        self.vector = vector
+        self.shape = (layout.shape[0],) if vector else (layout.shape[0], len(index))
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        start, stop, _ = rows.indices(self.layout.shape[0])
+        values = np.asarray(mapped_rows(self.layout, start, stop - start)[:, self.index], dtype=np.float64)
+        values = values[:, 0] if self.vector else values
+        return values * self.scale if self.scale != 1.0 else values

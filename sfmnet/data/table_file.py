@@ -57,7 +57,9 @@ class Table:
 
 
 def read_table(path: Path, columns: list[str] | None = None) -> Table:
-    """Read a CSV (header row, one sample per row), ``.npy`` (needs ``columns``) or ``.npz`` (one array per column).
+    """Read a CSV (header row, one sample per row), ``.npy`` (needs ``columns``), ``.npz`` (one array per column),
+    or a whitespace-separated text table (``.txt``, ``.dat``, ``.tsv``: numbers only, a header row unless
+    ``columns`` names the columns, as loggers and MATLAB's ``save -ascii`` write).
 
     Empty cells become NaN. A column with any non-numeric, non-empty cell is kept as text and
     refused where a number is needed.
@@ -73,6 +75,8 @@ def read_table(path: Path, columns: list[str] | None = None) -> Table:
         if path.suffix == ".npz":
             with np.load(path, allow_pickle=False) as archive:
                 return Table(path, {k: np.asarray(archive[k], dtype=np.float64).ravel() for k in archive.files}, {})
+        if path.suffix in WHITESPACE_SUFFIXES:
+            return _read_whitespace(path, columns)
         return _read_csv(path)
     except PermissionError:
         raise SfmnetError(f"{path} cannot be read (permission denied): check the file's permissions") from None
@@ -90,6 +94,16 @@ def _from_array(path: Path, array: np.ndarray, columns: list[str] | None) -> Tab
             f"{path} has {array.shape[1]} columns: name them all with data.columns=[...] ({len(columns or [])} given)"
         )
     return Table(path, {name: array[:, i].astype(np.float64) for i, name in enumerate(columns)}, {})
+
+
+WHITESPACE_SUFFIXES = (".txt", ".dat", ".tsv")
+
+
+def _read_whitespace(path: Path, columns: list[str] | None) -> Table:
+    """A numeric table separated by spaces or tabs; named by ``columns``, else by its first line."""
+    header = None if columns else path.open().readline().split()
+    array = np.loadtxt(path, ndmin=2, skiprows=0 if columns else 1, dtype=np.float64)
+    return _from_array(path, array, columns or header)
 
 
 def _read_csv(path: Path) -> Table:

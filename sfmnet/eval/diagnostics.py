@@ -7,6 +7,8 @@ import math
 import torch
 
 from sfmnet.data.recording import CalibrationRecording
+from sfmnet.eval.goodness_of_fit import GoodnessOfFit, goodness_of_fit
+from sfmnet.linalg.uncertainty import CalibrationUncertainty
 from sfmnet.models.linear_calibrator import LinearCalibrator
 
 # Below these the data hardly supports a rank-n calibration (see README, "Diagnostics").
@@ -15,17 +17,25 @@ WARN_COVERAGE = 0.5
 
 
 def calibration_diagnostics(
-    model: LinearCalibrator, recording: CalibrationRecording, channels: list[str], residuals: torch.Tensor
-) -> tuple[dict[str, float], list[str]]:
-    """Diagnostic metrics of a fitted model and the warnings they call for.
+    model: LinearCalibrator,
+    recording: CalibrationRecording,
+    channels: list[str],
+    loads: torch.Tensor,
+    uncertainty: CalibrationUncertainty,
+    load_unit: str,
+) -> tuple[dict[str, float], list[str], GoodnessOfFit]:
+    """Diagnostic metrics of a fitted model, the warnings they call for, and its goodness of fit.
 
     Args:
-        residuals: ``f x p``, from :meth:`LinearCalibrator.fitted_residuals`.
+        loads: ``f x n``, each row's fitted load (:meth:`LinearCalibrator.fitted_loads`).
+        uncertainty: the fit's error bars (its noise estimate is what the checks compare with).
 
     Returns:
-        ``rank_gap`` (singular value n over n+1 of the readings), ``condition_number`` (of the
-        calibration matrix), ``coverage`` (shape from motion: 1 for orientations spread over
-        the whole circle or sphere), ``residual_rms/<channel>`` (raw units); and warnings.
+        ``rank_gap`` (singular value n over n+1 of the readings, where ``p > n``),
+        ``condition_number`` (of the calibration matrix), ``coverage`` (shape from motion: 1 for
+        orientations spread over the whole circle or sphere), ``residual_rms/<channel>`` (raw
+        units) and the :func:`~sfmnet.eval.goodness_of_fit.goodness_of_fit` figures; the warnings
+        (goodness-of-fit ones included); the goodness of fit itself.
     """
     n = recording.rank
     singular = model.singular_values
@@ -38,7 +48,8 @@ def calibration_diagnostics(
                 f"rank gap {metrics['rank_gap']:.2f} (< {WARN_RANK_GAP:g}): the readings are barely rank {n}; "
                 "the sensor is noisy or nonlinear, or the loads do not span every axis"
             )
-    matrix_singular = torch.linalg.svdvals(model.calibration_matrix())
+    matrix = model.calibration_matrix()
+    matrix_singular = torch.linalg.svdvals(matrix)
     metrics["condition_number"] = float(matrix_singular[0] / matrix_singular[-1])
     coverage = model.coverage
     if math.isfinite(coverage):
@@ -48,6 +59,25 @@ def calibration_diagnostics(
                 f"coverage {coverage:.2f} (< {WARN_COVERAGE:g}; 1 is a full {'circle' if n == 2 else 'sphere'}): "
                 "the orientations leave part of the load space unvisited; turn the mass through more of it"
             )
+    residuals = model.fitted_residuals(recording, loads)
     residual = residuals.pow(2).mean(dim=0).sqrt()
     metrics.update({f"residual_rms/{name}": float(value) for name, value in zip(channels, residual)})
-    return metrics, warnings
+    directions, _ = model.unknown_directions(recording)
+    # An unconstrained row's load is free in all n dimensions; a constrained one has d - 1 free.
+    direction_dims = directions.shape[1] + (0 if model.constrained else 1)
+    known = recording.known
+    goodness = goodness_of_fit(
+        residuals,
+        recording.readings,
+        known,
+        direction_dims,
+        uncertainty.noise_std,
+        bool(getattr(model, "robust", None)),
+        recording.groups,
+        model.motion_of(recording.readings[known]),
+        recording.loads[known],
+        matrix,
+        load_unit,
+    )
+    metrics.update(goodness.metrics)
+    return metrics, [*warnings, *goodness.warnings], goodness

@@ -1,5 +1,5 @@
 """Figures a person looks at: the recovered motion (paper Figs. 4 and 5), the singular-value spectrum,
-and human against learnt commands (paper Fig. 6)."""
+human against learnt commands (paper Fig. 6), and a continuous recording's static intervals."""
 
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import torch
 from matplotlib.figure import Figure
+
+from sfmnet.preprocessing.static_intervals import StaticIntervals
 
 
 def motion_figure(motion: torch.Tensor, magnitude: float, unit: str, title: str) -> Figure | None:
@@ -106,6 +108,41 @@ def commands_figure(
     axes[-1].plot(t, confidence, color="tab:green", linewidth=0.8)
     axes[-1].set_ylabel("confidence")
     axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def static_intervals_figure(detection: StaticIntervals, channels: list[str], title: str) -> Figure:
+    """A continuous recording with its static intervals shaded: the first channels above, the motion statistic below.
+
+    Args:
+        detection: the detector's result (its thinned preview of the stream is what is drawn).
+        channels: the names of the previewed channels (the first ones).
+    """
+    rows = detection.preview_rows
+    timed = detection.preview_time is not None
+    x = detection.preview_time if timed else rows
+    to_x = (lambda r: np.interp(r, rows, detection.preview_time)) if timed else (lambda r: np.asarray(r, dtype=float))
+    # Each drawn point of the statistic is the largest of the rows it stands for, so short motion shows.
+    edges = np.append(rows, len(detection.statistic))
+    peaks = np.maximum.reduceat(detection.statistic, rows) if len(rows) else rows
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 5.2), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    for axis in (top, bottom):
+        for first, stop in detection.intervals:
+            axis.axvspan(to_x(first), to_x(stop - 1), color="tab:green", alpha=0.18, linewidth=0)
+    for values, name in zip(detection.preview_readings.T, channels):
+        top.plot(x, values, linewidth=0.7, label=name)
+    top.set_ylabel("reading (raw units)")
+    top.plot([], [], color="tab:green", alpha=0.4, linewidth=8, label="static (kept)")
+    top.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    bottom.plot(x, np.maximum(peaks, 1e-3), color="0.3", linewidth=0.7, label="windowed variance / noise variance\n(mean over channels)")
+    bottom.axhline(detection.threshold, color="tab:red", linestyle="--", linewidth=1, label=f"threshold {detection.threshold:g}")
+    bottom.set_yscale("log")
+    bottom.set_ylabel("motion statistic")
+    bottom.set_xlabel("time (s)" if timed else "row")
+    bottom.set_xlim(x[0], to_x(edges[-1] - 1))
+    bottom.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig

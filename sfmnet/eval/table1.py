@@ -1,4 +1,4 @@
-"""The paper's Table 1: least squares against shape from motion on the rotation protocol."""
+"""The paper's Table 1: least squares (the paper's form and the load regression) against shape from motion."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ PAPER_TABLE1 = {
     60.4: {"least_squares": (60.1, 0.5, 1.20), "shape_from_motion": (60.5, 0.2, 1.13)},
     111.4: {"least_squares": (110.2, 1.1, 0.83), "shape_from_motion": (111.6, 0.2, 0.60)},
 }
-METHODS = ("least_squares", "shape_from_motion")
+METHODS = ("least_squares", "regression", "shape_from_motion")
 COLUMNS = ["load", *(f"{method}_{figure}" for method in METHODS for figure in ("mean", "error_pct", "std_dev"))]
 
 
@@ -32,16 +32,18 @@ def write_table1(path: Path, rows: list[dict[str, float]]) -> None:
 
 
 def format_beside_paper(rows: list[dict[str, float]]) -> str:
-    """A plain-text table of the measured rows, with the paper's numbers under the loads it reports."""
-    head = f"{'load':>7} | {'least squares: mean  err%  std':>32} | {'shape from motion: mean  err%  std':>36}"
+    """A plain-text table of the measured rows, with the paper's numbers under the loads it reports (it has no regression)."""
+    titles = {"least_squares": "least squares", "regression": "regression", "shape_from_motion": "shape from motion"}
+    widths = [max(20, len(titles[m]) + 18) for m in METHODS]
+    head = " | ".join([f"{'load':>7}", *(f"{titles[m] + ': mean  err%  std':>{w}}" for m, w in zip(METHODS, widths))])
     lines = [head, "-" * len(head)]
     for row in rows:
         cells = [f"{row[f'{m}_mean']:8.2f} {row[f'{m}_error_pct']:5.2f} {row[f'{m}_std_dev']:5.2f}" for m in METHODS]
-        lines.append(f"{row['load']:>7g} | {cells[0]:>32} | {cells[1]:>36}")
+        lines.append(" | ".join([f"{row['load']:>7g}", *(f"{c:>{w}}" for c, w in zip(cells, widths))]))
         paper = PAPER_TABLE1.get(round(row["load"], 1))
         if paper:
-            cells = [f"{paper[m][0]:8.1f} {paper[m][1]:5.1f} {paper[m][2]:5.2f}" for m in METHODS]
-            lines.append(f"{'paper':>7} | {cells[0]:>32} | {cells[1]:>36}")
+            cells = [f"{paper[m][0]:8.1f} {paper[m][1]:5.1f} {paper[m][2]:5.2f}" if m in paper else "-" for m in METHODS]
+            lines.append(" | ".join([f"{'paper':>7}", *(f"{c:>{w}}" for c, w in zip(cells, widths))]))
     return "\n".join(lines)
 
 
@@ -49,7 +51,7 @@ def report_table1(metrics: dict[str, dict[str, float]], data: CalibrationData, r
     """Write ``table1.csv`` in the run directory and return it as text beside the paper's numbers."""
     missing = [m for m in METHODS if m not in metrics]
     if missing:
-        raise SfmnetError(f"table1 needs both methods, {', '.join(missing)} did not run: use experiment=table1")
+        raise SfmnetError(f"table1 needs every method, {', '.join(missing)} did not run: use experiment=table1")
     rows = table1_rows(metrics, [sweep.magnitude for sweep in data.evaluations])
     write_table1(run_dir / "table1.csv", rows)
     return f"Table 1 (written to {run_dir / 'table1.csv'}):\n{format_beside_paper(rows)}"

@@ -23,6 +23,10 @@ from torch.func import jacrev
 from sfmnet.calibration import calibration_matrix
 
 
+# Eigenvalues of the information below this fraction of the largest are the gauge, not data.
+GAUGE_RTOL = 1e-10
+
+
 @dataclass(frozen=True)
 class CalibrationUncertainty:
     """Standard errors (square roots of the Cramer-Rao bound's diagonal).
@@ -109,7 +113,9 @@ def calibration_uncertainty(
     information = shape_information(shape, known_motion, unknown_directions, unknown_maps, estimate_offset, unknown_weight)
     parameters = information.shape[0] + unknown_weight * len(unknown_directions) * (unknown_directions.shape[1] - 1)
     noise_var = residual_sum_of_squares / max(observations - parameters, 1)
-    covariance = noise_var * torch.linalg.pinv(information, hermitian=True)
+    # The frame's rotation gauge (no known loads) is null only up to rounding, which grows with the
+    # row count: a default relative cut (~1e-15) can invert that rounding into a huge variance.
+    covariance = noise_var * torch.linalg.pinv(information, hermitian=True, rtol=GAUGE_RTOL)
     shape_cov = covariance[: n * p, : n * p]
     jacobian = jacrev(calibration_matrix)(shape).reshape(n * p, n * p)
     matrix_var = torch.einsum("ab,bc,ac->a", jacobian, shape_cov, jacobian)

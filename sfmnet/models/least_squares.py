@@ -11,6 +11,12 @@ from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, rms_norm
 from sfmnet.models.losses import reconstruction_loss
 
 
+def require_every_load(recording: CalibrationRecording, method: str) -> None:
+    """Raise :class:`SfmnetError` unless every row of ``recording`` has its load."""
+    if not bool(recording.known.all()):
+        raise SfmnetError(f"{method} needs every load known, but {int((~recording.known).sum())} rows have none")
+
+
 class LeastSquaresCalibration(LinearCalibrator):
     """``S, o = argmin |Z - F S - 1 o^T|^2`` with the loads ``F`` all known.
 
@@ -25,10 +31,7 @@ class LeastSquaresCalibration(LinearCalibrator):
         super().__init__(estimate_offset=estimate_offset)
 
     def initialise(self, recording: CalibrationRecording) -> None:
-        if not bool(recording.known.all()):
-            raise SfmnetError(
-                f"least squares needs every load known, but {int((~recording.known).sum())} rows have none"
-            )
+        require_every_load(recording, "least squares")
         shape, offset = least_squares_shape(recording.loads, recording.readings, self.estimate_offset)
         self.singular_values = torch.linalg.svdvals(recording.readings - offset)
         # One scale per axis: forces and torques differ by orders of magnitude.

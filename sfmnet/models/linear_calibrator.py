@@ -134,9 +134,13 @@ class LinearCalibrator(nn.Module, ABC):
         )
 
     def residual_rms(self, recording: CalibrationRecording) -> float:
-        """RMS of ``Z - M S - o`` with ``M`` the least-squares loads: what the rank-n model leaves unexplained."""
-        residual = recording.readings - self.motion_of(recording.readings) @ self.physical_shape() - self.physical_offset()
-        return float(residual.pow(2).mean().sqrt())
+        """RMS of ``Z - M S - o`` per entry (raw units) with ``M`` the fitted loads: what the model leaves unexplained.
+
+        The fitted loads obey the metric constraint, so the residual holds both what lies off the
+        rank-n subspace and each row's departure from ``|m_j| = F``; with as many channels as
+        axes (``p = n``) only the latter is left, and it is what the error bars rest on.
+        """
+        return float(self.fitted_residuals(recording, self.fitted_loads(recording)).pow(2).mean().sqrt())
 
 
 def rms_norm(readings: torch.Tensor) -> torch.Tensor:

@@ -30,10 +30,12 @@ from sfmnet.models.linear_calibrator import (
 from sfmnet.models.losses import metric_constraint_loss, reconstruction_loss
 
 REFINEMENTS = ("auto", "alternation", "penalty", "marginal")
-# Below this signal-to-noise ratio (F |s| / noise, from the closed form) "auto" integrates the
-# directions out (marginal); above it the alternation is at the Cramer-Rao bound already and a
-# grid fine enough for the marginal would be costly (README, "Error against the Cramer-Rao bound").
-MARGINAL_BELOW_SNR = 50.0
+ROBUST_LOSSES = (None, "huber")
+# Smoothed EM steps of the directions' distribution per training step of the marginal refinement.
+PRIOR_STEPS = 100
+# Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
+# measured on the orientation laws of bench/crb_ratio.py --laws (SNR 2-20).
+PRIOR_SMOOTHING = 3.0
 
 
 class ShapeFromMotion(LinearCalibrator):
@@ -68,18 +70,25 @@ class ShapeFromMotion(LinearCalibrator):
       ``S`` (README, "Error against the Cramer-Rao bound").
     - ``"penalty"``: the trainer's optimiser on the loss above with each ``u_j`` its exact argmin.
     - ``"marginal"``: the optimiser on the negative log marginal likelihood, each unknown
-      direction integrated over a uniform grid (:meth:`marginal_loss`), the noise level learnt
-      with it: no per-sample parameters, so no incidental-parameter bias; at the bound at low SNR.
-    - ``"auto"`` (default): ``"marginal"`` below ``MARGINAL_BELOW_SNR`` as estimated from the
-      closed form, else ``"alternation"``.
+      direction integrated over a grid (:meth:`marginal_loss`) weighted by the distribution of
+      directions, which is learnt with the shape (smoothed EM, :meth:`update_prior`), the noise level
+      too: no per-sample parameters, so no incidental-parameter bias, and no assumed orientation law.
+    - ``"auto"`` (default): ``"marginal"`` where its grid resolves one sample's angular spread as
+      estimated from the closed form (:meth:`grid_resolves`: SNR below about 58 for 4 channels on the
+      circle, 9 for 6 on the sphere), else ``"alternation"``.
 
     Args:
         rank: ``n``, the number of load axes (2, 3, 6, ...); None takes it from the data.
         metric_weight: weight of the metric-constraint loss (0: unconstrained).
         estimate_offset: learn channel offsets (ellipsoid closed form, NOTES 4); else tared readings.
         refinement: ``"auto"``, ``"alternation"``, ``"penalty"`` or ``"marginal"`` (see above).
-        marginal_grid: directions in the marginal's grid (default 256 on a circle, 2000 on a sphere).
+        marginal_grid: directions in the marginal's grid (default 512 on a circle, 2000 on a sphere).
         alternation_steps: alternation rounds per training step (full batches only).
+        robust: ``"huber"`` weights each row of the alternation's least-squares step by Huber's
+            rule on its residual, so a few bad rows (motion, a bump, a slipped mass) cannot pull
+            the shape; None: plain least squares. Needs the alternation (``auto`` then takes it).
+        huber_threshold: rows whose residual norm exceeds this many times the median row's are
+            down-weighted in proportion (weight ``threshold * median / |r_j|``).
     """
 
     name = "shape_from_motion"
@@ -93,16 +102,30 @@ class ShapeFromMotion(LinearCalibrator):
         refinement: str = "auto",
         alternation_steps: int = 50,
         marginal_grid: int | None = None,
+        robust: str | None = None,
+        huber_threshold: float = 3.0,
     ) -> None:
         super().__init__(estimate_offset=estimate_offset)
         if refinement not in REFINEMENTS:
             raise SfmnetError(f"model.refinement is '{refinement}': use one of {', '.join(REFINEMENTS)}")
+        if robust not in ROBUST_LOSSES:
+            raise SfmnetError(f"model.robust is '{robust}': use null (least squares) or huber")
+        if robust and refinement not in ("auto", "alternation"):
+            raise SfmnetError(
+                f"model.robust=huber reweights the alternation's rows, not model.refinement={refinement}: "
+                "set model.refinement=alternation (or auto)"
+            )
+        if not huber_threshold > 0:
+            raise SfmnetError(f"model.huber_threshold must be positive, got {huber_threshold}")
+        self.robust = robust
+        self.huber_threshold = huber_threshold
         self.rank = rank
         self.metric_weight = metric_weight
         self.refinement = refinement
         self.alternation_steps = alternation_steps
         self.marginal_grid = marginal_grid
         self.register_buffer("grid", None)
+        self.register_buffer("log_prior", None)
         self.register_parameter("log_noise", None)
         self.register_buffer("direction_maps", None)
         self.register_buffer("row_configuration", None)
@@ -136,7 +159,8 @@ class ShapeFromMotion(LinearCalibrator):
             noise = self.closed_form_noise(recording)
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":
-            self.refinement = "marginal" if self.constrained and self.snr < MARGINAL_BELOW_SNR else "alternation"
+            low_snr = self.constrained and self.grid_resolves(noise)
+            self.refinement = "marginal" if low_snr and not self.robust else "alternation"
         if self.refinement == "marginal":
             self.start_marginal(noise)
 
@@ -149,13 +173,79 @@ class ShapeFromMotion(LinearCalibrator):
         if not self.constrained:
             raise SfmnetError("model.refinement=marginal integrates over directions on the sphere: it needs metric_weight > 0")
         d = self.direction_maps.shape[1]
-        self.grid = direction_grid(d, self.marginal_grid or (256 if d == 2 else 2000))
+        self.grid = direction_grid(d, self.grid_size(d))
+        # One distribution of directions per mass configuration, uniform to start with.
+        configurations = len(self.direction_maps)
+        self.log_prior = torch.full((configurations, len(self.grid)), -math.log(len(self.grid)), dtype=self.shape.dtype)
         self.log_noise = dense_parameter((torch.as_tensor(noise, dtype=self.shape.dtype) / self.reading_scale).log())
 
-    def marginal_loss(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """Negative log marginal likelihood per row, each unknown direction integrated over the uniform grid.
+    def grid_size(self, dims: int) -> int:
+        """Directions in the marginal's grid: ``marginal_grid``, else 512 on a circle and 2000 on a sphere."""
+        return self.marginal_grid or (512 if dims == 2 else 2000)
 
-        ``-log p(z_j) = -logsumexp_k(-|z_j - o - u_k D_c S|^2 / 2 s^2) + log K + p log s`` (unknown rows),
+    def grid_resolves(self, noise: float) -> bool:
+        """Whether the marginal's grid spacing is under one sample's angular spread ``noise / (F rms(sv(S)))``.
+
+        ``noise`` in raw units. Where it is not (high SNR: 58 on a 4-channel circle, 9 on a 6-channel
+        sphere), a learnt distribution of directions would snap them to grid points, and "auto" takes the
+        alternation, whose incidental-parameter bias is then small.
+        """
+        d = self.direction_maps.shape[1]
+        spacing = (2 * math.pi if d == 2 else math.sqrt(4 * math.pi)) / self.grid_size(d) ** (1 / (d - 1))
+        singular = torch.linalg.svdvals(self.direction_maps[0] @ self.shape.detach()) * self.reading_scale
+        return spacing < noise / float(singular.pow(2).mean().sqrt())
+
+    def grid_log_likelihood(self, rows: torch.Tensor, configuration: int) -> torch.Tensor:
+        """``-|z_j - o - u_k D_c S|^2 / 2 s^2`` for ``b`` offset-free rows (``b x p``, dimensionless) and grid point ``k``: ``b x K``."""
+        predictions = self.grid @ (self.direction_maps[configuration] @ self.shape)
+        distance2 = rows.pow(2).sum(dim=1, keepdim=True) - 2 * rows @ predictions.T + predictions.pow(2).sum(dim=1)
+        return -distance2 / (2 * torch.exp(2 * self.log_noise))
+
+    def prior_kernel(self, configuration: int) -> torch.Tensor:
+        """The smoothing kernel of :meth:`update_prior` between grid points, ``K x K`` (rows sum to one).
+
+        A von Mises-Fisher kernel ``exp(kappa u_k . u_l)``, ``kappa = 1 / h^2``, of angular width
+        ``h = PRIOR_SMOOTHING * a^2`` (radians), ``a = s / rms(singular values of D_c S)`` the spread of
+        one sample's direction. Smoothing tames the unsmoothed estimate's spikes where ``a`` is
+        wide (SNR ~ 2); its own bias, ``O(h^2) = O(a^4)``, stays below the incidental-parameter bias
+        ``O(a^2)`` it replaces where ``a`` is narrow.
+        """
+        singular = torch.linalg.svdvals(self.direction_maps[configuration] @ self.shape.detach())
+        spread = float(torch.exp(self.log_noise.detach()) / singular.pow(2).mean().sqrt())
+        return torch.softmax(self.grid @ self.grid.T / (PRIOR_SMOOTHING * spread**2) ** 2, dim=1)
+
+    def prepare_step(self, batch: Batch) -> None:
+        """Before each of the trainer's steps on ``batch``: the marginal refinement updates the directions' distribution."""
+        if self.refinement == "marginal":
+            self.update_prior(batch)
+
+    @torch.no_grad()
+    def update_prior(self, batch: Batch) -> None:
+        """``PRIOR_STEPS`` smoothed EM steps (Silverman et al. 1990) of the directions' distribution, ``S``, ``o``, ``s`` held.
+
+        ``w <- K^T (w * L^T (1 / (L w))) / f_c`` with ``L_jk = N(z_j; o + u_k D_c S, s^2 I)`` (each row
+        scaled by its largest entry) and ``K`` of :meth:`prior_kernel`: EM's step towards the
+        nonparametric maximum-likelihood mixing distribution, smoothed to the resolution the data support.
+        """
+        index, readings, loads = batch
+        centred = readings / self.reading_scale - self.offset
+        unknown = torch.isnan(loads).any(dim=1)
+        configuration = self.row_configuration[index]
+        for c in configuration[unknown].unique().tolist():
+            log_likelihood = self.grid_log_likelihood(centred[unknown & (configuration == c)], c)
+            likelihood = torch.exp(log_likelihood - log_likelihood.max(dim=1, keepdim=True).values)
+            kernel = self.prior_kernel(c)
+            prior = self.log_prior[c].exp()
+            for _ in range(PRIOR_STEPS):
+                prior = kernel.T @ (prior * (likelihood.T @ (1 / (likelihood @ prior))) / len(likelihood))
+            # Grid points the data rule out keep a floor, so the log stays finite.
+            self.log_prior[c] = prior.clamp_min(torch.finfo(prior.dtype).tiny).log()
+
+    def marginal_loss(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """Negative log marginal likelihood per row, each unknown direction integrated over the grid.
+
+        ``-log p(z_j) = -logsumexp_k(log w_ck - |z_j - o - u_k D_c S|^2 / 2 s^2) + p log s`` (unknown rows,
+        ``w_c`` the learnt distribution of directions of configuration ``c``, :meth:`update_prior`),
         ``|z_k - f_k S - o|^2 / 2 s^2 + p log s`` (known rows), constants dropped. Unlike the joint
         maximum likelihood it has no per-sample direction parameters, so no incidental-parameter bias.
         """
@@ -169,10 +259,8 @@ class ShapeFromMotion(LinearCalibrator):
         total = (known_residual.pow(2).sum(dim=1) / (2 * variance)).sum()
         configuration = self.row_configuration[index]
         for c in configuration[unknown].unique().tolist():
-            rows = centred[unknown & (configuration == c)]
-            predictions = self.grid @ (self.direction_maps[c] @ self.shape)
-            distance2 = rows.pow(2).sum(dim=1, keepdim=True) - 2 * rows @ predictions.T + predictions.pow(2).sum(dim=1)
-            total = total - torch.logsumexp(-distance2 / (2 * variance), dim=1).sum()
+            log_likelihood = self.grid_log_likelihood(centred[unknown & (configuration == c)], c)
+            total = total - torch.logsumexp(self.log_prior[c] + log_likelihood, dim=1).sum()
         total = total + len(centred) * p * self.log_noise
         loss = total / len(centred)
         return {"marginal_nll": loss, "noise": torch.exp(self.log_noise).detach(), "loss": loss}
@@ -286,6 +374,10 @@ class ShapeFromMotion(LinearCalibrator):
         """
         readings, motion, _, _ = self.batch_motion(batch)
         design = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if self.estimate_offset else motion
+        if self.robust:
+            residual = (readings - motion @ self.shape - self.offset).norm(dim=1)
+            root = huber_weights(residual, self.huber_threshold).sqrt()[:, None]
+            design, readings = design * root, readings * root
         solution = torch.linalg.lstsq(design, readings).solution
         if not self.estimate_offset:
             solution = torch.cat([solution, self.offset.detach()[None]])
@@ -309,7 +401,8 @@ class ShapeFromMotion(LinearCalibrator):
             loads = self.motion_of(recording.readings[unknown])
             return loads, torch.eye(n, dtype=loads.dtype).expand(len(loads), n, n)
         configuration = recording.row_configuration[unknown]
-        directions = self.directions(recording.readings[unknown] / self.reading_scale, configuration, self.metric_weight)
+        # The refinement's own direction estimates, so residuals and error bars describe its fixed point.
+        directions = self.row_directions(recording.readings[unknown] / self.reading_scale, configuration)
         return directions / directions.norm(dim=1, keepdim=True), recording.maps[configuration]
 
     @torch.no_grad()
@@ -337,3 +430,13 @@ class ShapeFromMotion(LinearCalibrator):
         rotation = frame_rotation(self.motion_of(recording.readings[known]), recording.loads[known], hint_motion, hint)
         self.shape.copy_(rotation.T @ self.shape)
 
+
+
+def huber_weights(residual_norms: torch.Tensor, threshold: float) -> torch.Tensor:
+    """Iteratively reweighted least squares weights of Huber's loss on each row's residual norm ``r_j`` (``f``).
+
+    ``w_j = min(1, c / r_j)`` with ``c = threshold * median(r)``: rows within ``c`` count fully, rows
+    beyond it as if their residual were ``c`` (Huber's loss is quadratic inside, linear outside).
+    """
+    limit = threshold * residual_norms.median()
+    return (limit / residual_norms.clamp_min(torch.finfo(residual_norms.dtype).tiny)).clamp(max=1.0)

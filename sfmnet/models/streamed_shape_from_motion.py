@@ -123,9 +123,16 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.residual_squares = torch.zeros(p, dtype=torch.float64)
 
     def accumulate(self, block: RowBlock) -> None:
-        """Add one block (readings minus the data's shift) to this pass's sums."""
+        """Add one block (readings minus the data's shift) to this pass's sums; rows in motion are left out."""
+        rows = torch.arange(block.start, block.start + len(block.readings))
+        if block.loads.shape[1] < self.rank:
+            # No load columns: every row's load is unknown.
+            block = RowBlock(block.start, block.readings, block.readings.new_full((len(block.readings), self.rank), math.nan))
+        if self.data.keep is not None:
+            static = torch.from_numpy(self.data.keep[block.start : block.start + len(block.readings)])
+            block, rows = RowBlock(block.start, block.readings[static], block.loads[static]), rows[static]
         if self.passes == 0:
-            self.accumulate_moments(block)
+            self.accumulate_moments(block, rows)
         elif self.passes == 1:
             design = metric_design(self.affine_motion(block.readings), self.estimate_offset)
             self.metric_normal += cross_product(design)
@@ -133,14 +140,14 @@ class StreamedShapeFromMotion(LinearCalibrator):
         else:
             self.accumulate_alternation(block)
 
-    def accumulate_moments(self, block: RowBlock) -> None:
+    def accumulate_moments(self, block: RowBlock, rows: torch.Tensor) -> None:
+        """``rows``: each block row's index in the file."""
         self.moments.add_shifted(block.readings)
         given = torch.isfinite(block.loads)
         known = given.all(dim=1)
         partial = torch.nonzero(given.any(dim=1) & ~known)
         if len(partial):
-            self.first_partial_row = min(self.first_partial_row, block.start + int(partial[0]))
-        rows = torch.arange(block.start, block.start + len(block.readings))
+            self.first_partial_row = min(self.first_partial_row, int(rows[partial[0]]))
         if known.any():
             self.known_rows.append(torch.cat([rows[known, None].double(), block.readings[known], block.loads[known]], 1))
         sampled = rows % self.stride == 0
@@ -351,7 +358,10 @@ class StreamedShapeFromMotion(LinearCalibrator):
         )
 
     def residual_rms(self, recording: CalibrationRecording) -> float:
-        """Exact over every row, from the moments: ``Z - o`` off the row space of ``S``."""
+        """Over every row: the last alternation pass's residuals ``Z - M S - o`` (the fitted, constrained loads);
+        after the closed form alone, exact from the moments but only off the row space of ``S``."""
+        if self.passes > 2:
+            return float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt())
         shape = self.physical_shape()
         complement = torch.eye(shape.shape[1], dtype=shape.dtype) - shape.T @ torch.linalg.solve(shape @ shape.T, shape)
         residual = torch.trace(complement @ self.moments.cross_about(self.physical_offset()) @ complement)

@@ -5,11 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import lightning as L
+import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from sfmnet.errors import SfmnetError
-from sfmnet.training.learner_module import Learner, LearnerModule
+from sfmnet.data.recording import CalibrationRecording
+from sfmnet.models.linear_calibrator import LinearCalibrator
+from sfmnet.training.learner_module import Learner, LearnerModule, OptimizerFactory
 
 
 def fit(
@@ -38,3 +41,39 @@ def fit(
     trainer: L.Trainer = instantiate(cfg.trainer, **trainer_options)
     trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
     return trainer
+
+
+def refine_in_process(
+    model: LinearCalibrator,
+    recording: CalibrationRecording,
+    optimizer: OptimizerFactory,
+    epochs: int = 10,
+    initialise: bool = True,
+) -> LinearCalibrator:
+    """The refinement steps :class:`LearnerModule` runs, on the whole recording as one batch, without a Trainer.
+
+    For benchmarks and tests that fit thousands of small sessions, where the Trainer's start-up
+    would dominate: the closed form (``initialise``), then per epoch the model's own alternation,
+    or its ``prepare_step`` followed by one step of ``optimizer`` (built from the parameters).
+    """
+    if initialise:
+        model.initialise(recording)
+    batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
+    if getattr(model, "alternating", False):
+        for _ in range(epochs):
+            model.alternate(batch)
+        return model
+    step = optimizer([p for p in model.parameters() if p.requires_grad])
+
+    def closure() -> torch.Tensor:
+        step.zero_grad()
+        loss = model.loss(batch)["loss"]
+        loss.backward()
+        return loss
+
+    prepare = getattr(model, "prepare_step", None)
+    for _ in range(epochs):
+        if prepare is not None:
+            prepare(batch)
+        step.step(closure)
+    return model

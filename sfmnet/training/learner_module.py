@@ -71,6 +71,13 @@ class LearnerModule(L.LightningModule):
         if self.streaming:
             self.model.begin_pass()
 
+    def on_train_batch_start(self, batch: dict[str, tuple[torch.Tensor, ...]], batch_idx: int) -> None:
+        # Once per optimiser step (an L-BFGS step calls training_step many times): e.g. the marginal
+        # refinement's update of the directions' distribution (ShapeFromMotion.prepare_step).
+        prepare = getattr(self.model, "prepare_step", None)
+        if prepare is not None:
+            prepare(batch[self.model.recording])
+
     def training_step(self, batch: dict[str, tuple[torch.Tensor, ...]], batch_idx: int) -> torch.Tensor | None:
         rows = batch[self.model.recording]
         if self.streaming:

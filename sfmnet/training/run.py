@@ -40,7 +40,7 @@ from sfmnet.data.streamed_calibration import StreamedCalibrationDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import motion_figure, spectrum_figure
-from sfmnet.eval.held_out import load_errors
+from sfmnet.eval.held_out import load_errors, magnitude_errors
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.io import save_figure_atomic, write_json_atomic
 from sfmnet.models.linear_calibrator import LinearCalibrator
@@ -54,6 +54,7 @@ from sfmnet.training.fitting import fit
 from sfmnet.training.learner_module import matrix_error
 from sfmnet.training.progress import ProgressBar
 from sfmnet.training.sensorimotor_run import train_sensorimotor
+from sfmnet.training.static_report import report_static_intervals
 from sfmnet.training.streaming_run import train_streaming
 
 RESULT_FILES = ("metrics.json", "calibration.json")
@@ -109,8 +110,8 @@ def fit_method(
     recording = model.report_recording(data.recordings[model.recording])
     loads = model.fitted_loads(recording)
     uncertainty = model.uncertainty(recording, loads)
-    diagnostics, warnings = calibration_diagnostics(
-        model, recording, data.channels, model.fitted_residuals(recording, loads)
+    diagnostics, warnings, goodness = calibration_diagnostics(
+        model, recording, data.channels, loads, uncertainty, data.load_unit
     )
     warnings = [*model.fit_warnings, *warnings]
     calibration = Calibration(
@@ -128,10 +129,14 @@ def fit_method(
             "frame": frame_description(model),
             "noise_std": uncertainty.noise_std,
             "warnings": warnings,
+            # The error bars assume the model; a failed goodness-of-fit check says they cannot be believed.
+            "error_bars_trustworthy": goodness.trustworthy,
+            "outlier_rows": goodness.outlier_rows[:100],
         },
     )
     metrics: dict[str, float] = {
         "residual_rms": calibration.residual_rms,
+        "error_bars_trustworthy": float(goodness.trustworthy),
         "noise_std": uncertainty.noise_std,
         "matrix_std_relative": float(uncertainty.matrix_std.norm() / calibration.matrix.norm()),
         "fit_seconds": seconds,
@@ -145,8 +150,11 @@ def fit_method(
         metrics["matrix_error_relative"] = float(matrix_error(calibration.matrix, data.truth.matrix))
         metrics["offset_error_rms"] = float((calibration.offset - data.truth.offset).pow(2).mean().sqrt())
     metrics.update(evaluate_sweeps(calibration, data.evaluations, cfg.eval.smoothing_window))
-    if data.test is not None:
+    if data.test is not None and data.test.true_loads is not None:
         errors = load_errors(calibration, data.test.readings, data.test.true_loads)
+        metrics.update({f"test/{key}": value for key, value in errors.items()})
+    elif data.test is not None:
+        errors = magnitude_errors(calibration, data.test.readings, data.test.groups, data.test.magnitude)
         metrics.update({f"test/{key}": value for key, value in errors.items()})
     if trainer.is_global_zero:
         log_figures(name, model, recording, data.load_unit, model.singular_values, run_dir, logger, trainer.global_step)
@@ -223,7 +231,7 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
         # Other processes of a distributed fit (same numbers): the first one writes and reports.
         return main.metrics
     main.calibration.save(run_dir / "calibration.json")
-    metrics = dict(main.metrics)
+    metrics = {**main.metrics, **report_static_intervals(datamodule.data, run_dir)}
     for name, result in results.items():
         if result is not main:
             result.calibration.save(run_dir / "baselines" / name / "calibration.json")
@@ -233,8 +241,13 @@ def train(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     print(f"\nrun directory: {run_dir}")
     for result in results.values():
         print(headline(result, datamodule.data.load_unit))
+        if not result.metrics.get("error_bars_trustworthy", 1.0):
+            print(f"  {result.name}: NOT TRUSTWORTHY: the checks below say the model does not describe this data")
         for warning in result.warnings:
             print(f"  warning ({result.name}): {warning}")
+    comparison = against_best_baseline(results, main_model.name)
+    if comparison:
+        print(comparison)
     if cfg.get("report"):
         print(instantiate(cfg.report)({n: r.metrics for n, r in results.items()}, datamodule.data, run_dir))
     print(f"inspect: tensorboard --logdir {run_dir}")
@@ -262,6 +275,27 @@ def cross_validate(
     logger.experiment.flush()
 
 
+# Each experiment's main error figure, the first of these every method has: held-out first, then Table 1's.
+MAIN_ERRORS = ("lopo/force_rms", "test/force_rms", "eval/max_error_pct")
+
+
+def against_best_baseline(results: dict[str, MethodResult], main: str) -> str | None:
+    """One line: the main method against the best baseline (e.g. the better least-squares form) by the main error figure.
+
+    None without baselines or a figure every method has.
+    """
+    baselines = [result for name, result in results.items() if name != main]
+    key = next((k for k in MAIN_ERRORS if all(k in r.metrics for r in results.values())), None)
+    if not baselines or key is None:
+        return None
+    best = min(baselines, key=lambda result: result.metrics[key])
+    others = ", ".join(f"{r.name} {r.metrics[key]:.4g}" for r in baselines if r is not best)
+    return (
+        f"  {main} against the best baseline by {key}: {results[main].metrics[key]:.4g} against "
+        f"{best.name} {best.metrics[key]:.4g}" + (f" (beside {others})" if others else "")
+    )
+
+
 def headline(result: MethodResult, unit: str) -> str:
     m = result.metrics
     parts = []
@@ -273,7 +307,13 @@ def headline(result: MethodResult, unit: str) -> str:
     if "test/force_rms" in m:
         torque = f", torque {m['test/torque_rms']:.4f} N m" if "test/torque_rms" in m else ""
         parts.append(f"held-out force error {m['test/force_rms']:.3f} {unit.split(', ')[0]} RMS{torque}")
+    if "test/magnitude_rms" in m:
+        parts.append(
+            f"held-out |load| - magnitude {m['test/magnitude_rms']:.4g} {unit} RMS over {m['test/groups']:.0f} intervals"
+        )
     parts.append(f"matrix standard error {100 * m['matrix_std_relative']:.3f} % (Cramer-Rao)")
+    if "goodness/outliers" in m and m["goodness/outliers"]:
+        parts.append(f"{m['goodness/outliers']:.0f} outlying rows")
     if "matrix_error_relative" in m:
         parts.append(f"matrix error {100 * m['matrix_error_relative']:.3f} % (vs simulated truth)")
     if "rank_gap" in m:

@@ -1,0 +1,102 @@
+"""Which rows of a calibration file are fitted: the static intervals of a continuous recording (config glue).
+
+The detector itself is :func:`sfmnet.preprocessing.static_intervals.find_static_intervals`;
+this module turns ``data.static_intervals``, ``data.time_unit`` and ``data.static`` into its
+arguments and applies the calibration's rules: known loads lie in static intervals, and
+there are enough intervals for the metric constraint's unknowns.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from sfmnet.errors import SfmnetError
+from sfmnet.linalg.factorisation import metric_unknowns
+from sfmnet.preprocessing.static_intervals import (
+    DEFAULT_NOISE_QUANTILE,
+    DEFAULT_THRESHOLD,
+    Rows,
+    StaticIntervals,
+    find_static_intervals,
+)
+
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+STATIC_KEYS = {"window", "min_duration", "threshold", "noise_quantile"}
+
+
+@dataclass(frozen=True)
+class StaticSettings:
+    """The detector's settings from the config; ``time_scale`` turns the time column into seconds."""
+
+    window: float | None
+    min_duration: float | None
+    threshold: float
+    noise_quantile: float
+    time_scale: float
+
+    def detect(self, readings: Rows, time: Rows | None) -> StaticIntervals:
+        return find_static_intervals(
+            readings, time, window=self.window, min_duration=self.min_duration,
+            threshold=self.threshold, noise_quantile=self.noise_quantile,
+        )
+
+
+def static_settings(enabled: bool | None, time_column: str | None, time_unit: str, static: dict | None) -> StaticSettings | None:
+    """The settings, or None when detection is off (``enabled`` false, or null without a time column)."""
+    if enabled is False or (enabled is None and not time_column):
+        return None
+    if time_unit not in TIME_UNITS:
+        raise SfmnetError(f"data.time_unit is '{time_unit}': use one of {', '.join(TIME_UNITS)}")
+    given = dict(static or {})
+    unknown = sorted(set(given) - STATIC_KEYS)
+    if unknown:
+        raise SfmnetError(f"data.static.{unknown[0]} is not a setting: use {', '.join(sorted(STATIC_KEYS))}")
+    settings = StaticSettings(
+        window=given.get("window"),
+        min_duration=given.get("min_duration"),
+        threshold=float(DEFAULT_THRESHOLD if given.get("threshold") is None else given["threshold"]),
+        noise_quantile=float(DEFAULT_NOISE_QUANTILE if given.get("noise_quantile") is None else given["noise_quantile"]),
+        time_scale=TIME_UNITS[time_unit],
+    )
+    for name in ("window", "min_duration", "threshold"):
+        value = getattr(settings, name)
+        if value is not None and not value > 0:
+            raise SfmnetError(f"data.static.{name} is {value}: give a positive number (or null for the default)")
+    if not 0 < settings.noise_quantile < 1:
+        raise SfmnetError(f"data.static.noise_quantile is {settings.noise_quantile}: give a fraction between 0 and 1")
+    return settings
+
+
+def fitted_rows(
+    detection: StaticIntervals, known: np.ndarray, axes: int, where: Callable[[int], str], check_count: bool = True
+) -> np.ndarray:
+    """``f`` bool, the rows to fit: the static ones.
+
+    A known-load row at an interval's end (within a window: the detector's resolution) is left
+    out like its neighbours; one farther from every interval was recorded in motion, which no
+    calibration can use.
+
+    Args:
+        known: row indices (int) of the known-load rows.
+        axes: ``n``, for the metric constraint's unknowns (with offsets).
+        where: a row's place in the file for messages, e.g. ``line 17 of session.csv``.
+        check_count: refuse fewer intervals than unknowns (single-mass sessions).
+    """
+    moving = known[~detection.mask[known] & ~detection.near_interval(known)]
+    if len(moving):
+        raise SfmnetError(
+            f"the known load on {where(int(moving[0]))} was recorded in motion (no static interval within a window): "
+            "fill the load columns only while the mass is held still, or tune data.static"
+        )
+    needed = metric_unknowns(axes, True)
+    if check_count and not detection.independent and detection.count < needed:
+        raise SfmnetError(
+            f"{detection.count} static intervals found but a {axes}-axis calibration with offsets needs at least {needed} "
+            "(the unknowns of its metric constraint): record more poses held still, tune data.static "
+            "(window, threshold), or fit every row with data.static_intervals=false"
+        )
+    return detection.mask
+

@@ -1,0 +1,231 @@
+"""Does the fitted model describe the data? Checks that need no reference sensor (README, "Goodness of fit").
+
+A calibration can converge and still be wrong: rows in motion (inertial loads), a bump, a
+slipped mass, a nonlinear sensor or a mislabelled known load all leave a fit that looks
+precise. Three checks catch them, each against the reading noise:
+
+- the fit's residual noise against the noise seen within groups of rows recorded in one pose
+  (static intervals, or a group column): a model that fits leaves residuals at the noise level;
+- rows whose residual is far out (a chi-square tail, with the noise estimated robustly, so a
+  minority of bad rows cannot hide themselves by inflating it);
+- the known loads against where the fitted calibration puts their readings.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from sfmnet.linalg.group_means import group_means
+# The fit's residual noise may exceed the within-pose noise by this much before the model is
+# said not to describe the data (it is ~1 for a model that fits, whatever p and n).
+MAX_NOISE_RATIO = 1.5
+# A row is an outlier beyond this standard-normal quantile of its chi-square residual (p ~ 1e-4).
+OUTLIER_Z = 3.72
+# Pose means may miss the model by this much more than white noise within the poses explains.
+MAX_POSE_MISFIT_RATIO = 2.0
+# Outliers are a problem once there are more than a handful beyond what the tail itself predicts.
+OUTLIER_ALLOWANCE = 3
+# Known loads (pose means) may sit this many predicted standard errors from where the calibration puts
+# them (a chi-square tail of ~3e-4 for one known pose in 3 axes).
+MAX_KNOWN_LOAD_RATIO = 2.5
+
+
+@dataclass(frozen=True)
+class GoodnessOfFit:
+    """The checks' figures and what they call for.
+
+    Attributes:
+        metrics: ``goodness/...`` figures (see :func:`goodness_of_fit`).
+        warnings: one plain sentence per failed check.
+        outlier_rows: indices (rows of the fitted recording) of the outlying rows, worst first.
+    """
+
+    metrics: dict[str, float]
+    warnings: list[str]
+    outlier_rows: list[int] = field(default_factory=list)
+
+    @property
+    def trustworthy(self) -> bool:
+        """Whether the error bars, which assume the model, can be believed."""
+        return not self.warnings
+
+
+def within_group_noise(readings: torch.Tensor, groups: torch.Tensor) -> float:
+    """Pooled standard deviation of the readings about their group means (raw units, per channel entry).
+
+    ``sqrt(sum_k sum_{j in k} |z_j - zbar_k|^2 / ((f - K) p))``: the reading noise as seen within
+    poses, which no calibration model can explain. NaN with no group of two or more rows.
+
+    Args:
+        readings: ``f x p``; groups: ``f`` (long).
+    """
+    means, index, counts = group_means(readings, groups)
+    deviation = readings - means[index]
+    dof = (len(readings) - len(counts)) * readings.shape[1]
+    return math.sqrt(float(deviation.pow(2).sum()) / dof) if dof > 0 else math.nan
+
+
+def pose_misfit_ratio(residuals: torch.Tensor, groups: torch.Tensor, dof: torch.Tensor, noise: float) -> float:
+    """How far each group's mean residual is from what white noise predicts: ``sqrt(mean_k n_k |rbar_k|^2 / k_k) / sigma``.
+
+    A group of ``n_k`` rows recorded in one pose has a mean residual of variance ``k_k sigma^2 / n_k``
+    (``k_k`` residual degrees of freedom per row) if the model fits and the noise is white; ~1
+    then. Larger: the model misses the poses (nonlinearity, a load that differs from pose to pose)
+    or the noise is correlated in time (tremor, drift), and error bars that assume white noise
+    are too small by about this factor. NaN without a group of two or more rows.
+
+    Args:
+        residuals: ``f x p``; groups: ``f`` (long); dof: ``f`` (long); noise: ``sigma`` (raw units).
+    """
+    means, _, counts = group_means(residuals, groups)
+    row_dof = group_means(dof.to(residuals.dtype)[:, None], groups)[0][:, 0]
+    several = (counts > 1) & (row_dof > 0)
+    if not bool(several.any()) or not noise > 0:
+        return math.nan
+    scaled = counts[several] * means[several].pow(2).sum(dim=1) / row_dof[several]
+    return math.sqrt(float(scaled.mean())) / noise
+
+
+def chi_square_quantile(dof: int, z: float) -> float:
+    """Wilson-Hilferty approximation of the chi-square quantile at standard-normal quantile ``z``."""
+    a = 2 / (9 * dof)
+    return dof * (1 - a + z * math.sqrt(a)) ** 3
+
+
+def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Tensor, float]:
+    """Rows whose squared residual is beyond the chi-square tail, the noise estimated robustly.
+
+    ``|r_j|^2 / sigma^2 ~ chi2(k_j)`` for a row that fits, ``k_j`` its residual's degrees of
+    freedom (``p`` for a known load, ``p - d + 1`` for an unknown orientation, whose ``d - 1``
+    direction coordinates absorb part of the noise). ``sigma^2`` is the median of
+    ``|r_j|^2 / median(chi2(k_j))``, which a minority of bad rows barely moves.
+
+    Args:
+        residuals: ``f x p`` (raw units); dof: ``f`` (long; rows with none left are never outliers).
+
+    Returns:
+        The boolean ``f`` mask of outliers and the robust noise (raw units).
+    """
+    squares = residuals.pow(2).sum(dim=1)
+    free = dof > 0
+    if not bool(free.any()):
+        return torch.zeros_like(free), math.nan
+    squares, dof = squares[free], dof[free]
+    medians = torch.tensor([chi_square_quantile(int(k), 0.0) for k in dof.tolist()], dtype=squares.dtype)
+    variance = float((squares / medians).median())
+    limits = torch.tensor([chi_square_quantile(int(k), OUTLIER_Z) for k in dof.tolist()], dtype=squares.dtype)
+    outliers = torch.zeros_like(free)
+    outliers[free] = squares > limits * variance
+    return outliers, math.sqrt(max(variance, 0.0))
+
+
+def known_load_misfit(
+    calibrated: torch.Tensor, known: torch.Tensor, matrix: torch.Tensor, noise: float, groups: torch.Tensor | None
+) -> tuple[float, float]:
+    """RMS of the known loads' errors (load units) and its ratio to what the reading noise predicts.
+
+    A reading's noise ``e`` (white, ``noise`` per channel) reaches the load as ``C e``, of expected
+    squared norm ``noise^2 |C|_F^2``. Rows recorded in one known pose (``groups``) are averaged first,
+    so a systematic error (a wrong load, a sign, a tilted jig) is not lost in the per-row noise:
+    ``ratio = sqrt(mean_k n_k |ebar_k|^2) / (noise |C|_F)``, ~1 when the known loads are right.
+
+    Args:
+        calibrated: ``k x n``, ``C (z_k - o)`` of the known rows; known: ``k x n`` their loads.
+        matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (each row alone).
+    """
+    error = calibrated - known
+    rms = float(error.pow(2).mean().sqrt())
+    if groups is None:
+        groups = torch.arange(len(error))
+    means, _, counts = group_means(error, groups)
+    spread = math.sqrt(float((counts * means.pow(2).sum(dim=1)).mean()))
+    predicted = noise * float(matrix.norm())
+    return rms, spread / predicted if predicted > 0 else math.inf
+
+
+def goodness_of_fit(
+    residuals: torch.Tensor,
+    readings: torch.Tensor,
+    known: torch.Tensor,
+    direction_dims: int,
+    fit_noise: float,
+    robust: bool,
+    groups: torch.Tensor | None,
+    calibrated_known: torch.Tensor,
+    known_loads: torch.Tensor,
+    matrix: torch.Tensor,
+    load_unit: str,
+) -> GoodnessOfFit:
+    """Run every check on a fitted calibration.
+
+    Args:
+        residuals: ``f x p``, ``z - m S - o`` with each row's fitted load (raw units).
+        readings: ``f x p``, the rows fitted.
+        known: boolean ``f``, rows whose load was given.
+        direction_dims: ``d``, the dimension of an unknown row's direction (``n`` for a force sensor).
+        fit_noise: the noise the fit itself infers from its residuals (raw units).
+        robust: the fit down-weighted outlying rows (a robust loss): they are counted and listed,
+            but the model is judged on the rest (its noise taken robustly).
+        groups: ``f`` (long) rows recorded in one pose (static intervals, a group column), or None.
+        calibrated_known: ``k x n``, ``C (z - o)`` of the known rows; known_loads: ``k x n``.
+        matrix: ``C``, ``n x p``.
+        load_unit: for the messages.
+
+    Returns:
+        Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
+        ``goodness/pose_misfit_ratio`` (:func:`pose_misfit_ratio`; with groups),
+        ``goodness/outliers``, ``goodness/outlier_fraction``, ``goodness/robust_noise``,
+        ``goodness/known_load_rms`` and ``goodness/known_load_ratio`` (with known loads).
+    """
+    p = residuals.shape[1]
+    metrics: dict[str, float] = {}
+    warnings: list[str] = []
+    dof = torch.where(known, p, p - direction_dims + 1)
+    outliers, robust_noise = outlying_rows(residuals, dof)
+    if robust:
+        fit_noise = robust_noise
+    if groups is not None:
+        within = within_group_noise(readings, groups)
+        if math.isfinite(within) and within > 0:
+            ratio = fit_noise / within
+            metrics.update({"goodness/noise_within_groups": within, "goodness/noise_ratio": ratio})
+            if ratio > MAX_NOISE_RATIO:
+                warnings.append(
+                    f"the model does not describe the data: its residuals are {ratio:.1f}x the noise seen within "
+                    "static intervals or poses (rows in motion, a load that is not constant, a nonlinear sensor)"
+                )
+            misfit = pose_misfit_ratio(residuals, groups, dof, within)
+            metrics["goodness/pose_misfit_ratio"] = misfit
+            if misfit > MAX_POSE_MISFIT_RATIO:
+                warnings.append(
+                    f"the poses' mean readings miss the model by {misfit:.1f}x what white noise within them explains "
+                    "(noise correlated in time, e.g. tremor or drift, or a sensor that is not linear): the error "
+                    f"bars assume white noise and are about {misfit:.0f}x too small"
+                )
+    count = int(outliers.sum())
+    metrics.update(
+        {"goodness/outliers": float(count), "goodness/outlier_fraction": count / len(residuals), "goodness/robust_noise": robust_noise}
+    )
+    # The chi-square tail itself puts ~1e-4 of good rows beyond the limit.
+    if count > OUTLIER_ALLOWANCE + 10 * 1e-4 * len(residuals) and not robust:
+        warnings.append(
+            f"{count} of {len(residuals)} rows ({100 * count / len(residuals):.1f} %) are far off the model "
+            "(motion, bumps, a slipped mass): give a time column so static intervals are found, remove them, "
+            "or set model.robust=huber"
+        )
+    worst = residuals.pow(2).sum(dim=1)[outliers].argsort(descending=True)
+    outlier_rows = torch.nonzero(outliers)[:, 0][worst].tolist()
+    if len(known_loads):
+        rms, ratio = known_load_misfit(
+            calibrated_known, known_loads, matrix, fit_noise, None if groups is None else groups[known]
+        )
+        metrics.update({"goodness/known_load_rms": rms, "goodness/known_load_ratio": ratio})
+        if ratio > MAX_KNOWN_LOAD_RATIO:
+            warnings.append(
+                f"the known loads sit {rms:.4g} {load_unit} RMS from where the calibration puts them, {ratio:.1f}x "
+                "what the noise explains: a known load is wrong (column, sign, row) or was applied differently"
+            )
+    return GoodnessOfFit(metrics=metrics, warnings=warnings, outlier_rows=outlier_rows)

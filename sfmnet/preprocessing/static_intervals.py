@@ -1,0 +1,305 @@
+"""Static intervals of a continuous recording: the rows where the sensor was held still.
+
+A logger that runs on while a robot or a hand carries the sensor from pose to pose records
+inertial loads between the poses (``|F| != m g``). Following IMU calibration tools (IMU-TK,
+Tedaldi et al., ICRA 2014), a row is static when the variance of a moving window centred on
+it, relative to each channel's noise floor and averaged over the channels, is below a
+threshold; runs of static rows shorter than a minimum are dropped. The noise floor comes from
+the recording itself (a low quantile of each channel's windowed standard deviation), so no
+rest period is needed: only that at least ``noise_quantile`` of the rows are static.
+
+A file of independent poses (one sample per pose, in any order) is no stream: consecutive
+rows are as different as any two, and then every row is a static sample and nothing is dropped.
+
+Every pass reads the rows in chunks (an array or anything sliceable by rows, e.g. a memory
+map), so memory is ``O(f)`` bytes for the mask whatever the number of channels.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from statistics import NormalDist
+from typing import Protocol
+
+import numpy as np
+
+from sfmnet.errors import SfmnetError
+
+CHUNK_ROWS = 65_536
+NOISE_SAMPLES = 100_000   # windows per channel the noise-floor quantile is taken over, at most
+PREVIEW_ROWS = 20_000     # rows kept for plotting the stream, at most
+PREVIEW_CHANNELS = 3
+# Mean squared step between consecutive rows over twice the variance: 1 for independent rows,
+# about (noise / spread)^2 for a stream. Above this the rows are taken as independent poses.
+INDEPENDENT_RATIO = 0.5
+DEFAULT_WINDOW = {True: 0.5, False: 25}   # seconds with time, rows without
+DEFAULT_THRESHOLD = 3.0
+DEFAULT_NOISE_QUANTILE = 0.1
+
+
+class Rows(Protocol):
+    """Row-sliceable ``f x p`` (or ``f``) values: a numpy array, a memory map, or an adapter reading a file."""
+
+    shape: tuple[int, ...]
+
+    def __getitem__(self, rows: slice) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class StaticIntervals:
+    """Where a recording was static.
+
+    Attributes:
+        mask: ``f`` bool, the rows kept (inside a static interval).
+        intervals: ``k x 2`` int64, half-open row ranges ``[first, stop)`` in order; one per row
+            when ``independent``.
+        noise_floor: ``p`` raw units, each channel's noise standard deviation (NaN when ``independent``).
+        statistic: ``f`` float32, the windowed variance over the noise floor's square, averaged over
+            channels (about 1 at rest; zeros when ``independent``).
+        threshold: the statistic below which a row is static.
+        window_rows: rows in the centred moving window (odd).
+        min_rows: the shortest interval kept, rows.
+        period: seconds per row (the median step of the time column), or None without time.
+        serial_ratio: mean squared step between consecutive rows over twice the variance,
+            averaged over channels (1: independent rows; near 0: a stream).
+        independent: the rows are independent poses, not a stream: every row is kept.
+        interval_times: ``k x 2`` seconds, the first and last row's time of each interval (None without time).
+        preview_rows: ``m`` row indices of a thinned copy of the stream, for plots.
+        preview_time: ``m`` seconds at those rows (None without time).
+        preview_readings: ``m x c`` the first ``c <= 3`` channels at those rows (raw units).
+    """
+
+    mask: np.ndarray
+    intervals: np.ndarray
+    noise_floor: np.ndarray
+    statistic: np.ndarray
+    threshold: float
+    window_rows: int
+    min_rows: int
+    period: float | None
+    serial_ratio: float
+    independent: bool
+    interval_times: np.ndarray | None
+    preview_rows: np.ndarray
+    preview_time: np.ndarray | None
+    preview_readings: np.ndarray
+
+    @property
+    def count(self) -> int:
+        """``k``, the number of intervals."""
+        return len(self.intervals)
+
+    @property
+    def rows_kept(self) -> int:
+        return int(self.mask.sum())
+
+    def interval_of_rows(self) -> np.ndarray:
+        """``f`` int64: each row's interval index, -1 outside every interval."""
+        index = np.full(len(self.mask), -1, dtype=np.int64)
+        for k, (first, stop) in enumerate(self.intervals):
+            index[first:stop] = k
+        return index
+
+    def near_interval(self, rows: np.ndarray) -> np.ndarray:
+        """Bool per row of ``rows``: within one window of an interval (the detector's resolution at its ends)."""
+        if not self.count:
+            return np.zeros(len(rows), dtype=bool)
+        slack = self.window_rows
+        previous = np.searchsorted(self.intervals[:, 0], rows, side="right") - 1
+        following = previous + 1
+        close_previous = (previous >= 0) & (rows < self.intervals[np.maximum(previous, 0), 1] + slack)
+        close_following = (following < self.count) & (rows >= self.intervals[np.minimum(following, self.count - 1), 0] - slack)
+        return close_previous | close_following
+
+
+def find_static_intervals(
+    readings: Rows,
+    time: Rows | None = None,
+    window: float | None = None,
+    min_duration: float | None = None,
+    threshold: float = DEFAULT_THRESHOLD,
+    noise_quantile: float = DEFAULT_NOISE_QUANTILE,
+    chunk_rows: int = CHUNK_ROWS,
+) -> StaticIntervals:
+    """Find the static intervals of a recording (module docstring).
+
+    Args:
+        readings: ``f x p`` raw readings in row (time) order.
+        time: ``f`` seconds, increasing; None: rows are evenly spaced and durations are in rows.
+        window: the centred moving window, seconds (rows without ``time``); None: 0.5 s or 25 rows.
+        min_duration: the shortest static interval kept, seconds (rows without ``time``); None: two windows.
+        threshold: windowed variance over the noise variance (averaged over channels) below which a
+            row is static; pure noise gives about 1.
+        noise_quantile: each channel's noise floor is this quantile of its windowed standard
+            deviation (corrected to the noise's for Gaussian noise): at least this fraction of
+            the rows must be static.
+        chunk_rows: rows read at a time.
+
+    Returns:
+        :class:`StaticIntervals`.
+
+    Raises:
+        SfmnetError: ``time`` is not finite and increasing, or a reading is not finite.
+    """
+    f, p = readings.shape
+    if not (window is None or window > 0) or not (min_duration is None or min_duration > 0):
+        raise ValueError("window and min_duration must be positive")
+    if not 0 < noise_quantile < 1 or not threshold > 0:
+        raise ValueError("noise_quantile must lie in (0, 1) and threshold be positive")
+    scan = serial_scan(readings, time, chunk_rows)
+    period = scan.period
+    window = DEFAULT_WINDOW[time is not None] if window is None else window
+    half = max(1, round(window / (period or 1.0) / 2))
+    window_rows = 2 * half + 1
+    min_rows = max(1, math.ceil(min_duration / (period or 1.0))) if min_duration is not None else 2 * window_rows
+    common = dict(
+        threshold=threshold, window_rows=window_rows, min_rows=min_rows, period=period, serial_ratio=scan.ratio,
+        preview_rows=scan.preview_rows, preview_time=scan.preview_time, preview_readings=scan.preview_readings,
+    )
+    if scan.ratio >= INDEPENDENT_RATIO:
+        rows = np.arange(f)
+        return StaticIntervals(
+            mask=np.ones(f, dtype=bool), intervals=np.stack([rows, rows + 1], axis=1), noise_floor=np.full(p, np.nan),
+            statistic=np.zeros(f, dtype=np.float32), independent=True,
+            interval_times=None if time is None else np.stack([scan.time_at(rows), scan.time_at(rows)], axis=1),
+            **common,
+        )
+    floor = noise_floor(readings, half, noise_quantile, scan.step, chunk_rows)
+    statistic = np.empty(f, dtype=np.float32)
+    used = floor > 0
+    for first, variance in moving_variances(readings, half, chunk_rows):
+        statistic[first : first + len(variance)] = (variance[:, used] / floor[used] ** 2).mean(axis=1)
+    intervals = static_runs(statistic < threshold, min_rows)
+    mask = np.zeros(f, dtype=bool)
+    for first, stop in intervals:
+        mask[first:stop] = True
+    times = None
+    if time is not None:
+        times = np.stack([scan.time_at(intervals[:, 0]), scan.time_at(intervals[:, 1] - 1)], axis=1)
+    return StaticIntervals(
+        mask=mask, intervals=intervals, noise_floor=floor, statistic=statistic, independent=False,
+        interval_times=times, **common,
+    )
+
+
+@dataclass(frozen=True)
+class SerialScan:
+    """One pass's summary: the serial ratio, the time step, each channel's smallest step, a preview."""
+
+    ratio: float
+    period: float | None
+    step: np.ndarray
+    preview_rows: np.ndarray
+    preview_time: np.ndarray | None
+    preview_readings: np.ndarray
+    time: Rows | None
+
+    def time_at(self, rows: np.ndarray, chunk_rows: int = CHUNK_ROWS) -> np.ndarray:
+        """Seconds at ``rows`` (int), reading only the chunks that hold them."""
+        seconds = np.empty(len(rows), dtype=np.float64)
+        for chunk in np.unique(rows // chunk_rows):
+            first = int(chunk) * chunk_rows
+            inside = rows // chunk_rows == chunk
+            seconds[inside] = np.asarray(self.time[first : first + chunk_rows], dtype=np.float64)[rows[inside] - first]
+        return seconds
+
+
+def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int) -> SerialScan:
+    """The serial ratio (consecutive steps against the spread), the median time step, the smallest
+    nonzero step of each channel (its quantisation) and a thinned preview, in one pass."""
+    f, p = readings.shape
+    shift = np.asarray(readings[0:1], dtype=np.float64)[0]
+    total, squares, steps = np.zeros(p), np.zeros(p), np.zeros(p)
+    smallest = np.full(p, np.inf)
+    medians, previous, previous_time = [], None, None
+    thin = max(1, math.ceil(f / PREVIEW_ROWS))
+    preview_rows = np.arange(0, f, thin)
+    preview, preview_time = [], []
+    for first in range(0, f, chunk_rows):
+        block = np.asarray(readings[first : first + chunk_rows], dtype=np.float64) - shift
+        bad = ~np.isfinite(block).all(axis=1)
+        if bad.any():
+            raise SfmnetError(f"row {first + int(np.argmax(bad))} (0-based) has a NaN or infinite reading: repair or drop that row")
+        joined = block if previous is None else np.concatenate([previous, block])
+        difference = np.abs(np.diff(joined, axis=0))
+        steps += (difference**2).sum(axis=0)
+        nonzero = np.where(difference > 0, difference, np.inf)
+        smallest = np.minimum(smallest, nonzero.min(axis=0, initial=np.inf))
+        total += block.sum(axis=0)
+        squares += (block**2).sum(axis=0)
+        local = preview_rows[(preview_rows >= first) & (preview_rows < first + len(block))] - first
+        preview.append(block[local, :PREVIEW_CHANNELS] + shift[:PREVIEW_CHANNELS])
+        if time is not None:
+            stamps = np.asarray(time[first : first + chunk_rows], dtype=np.float64)
+            joined_time = stamps if previous_time is None else np.concatenate([previous_time, stamps])
+            increments = np.diff(joined_time)
+            wrong = ~np.isfinite(joined_time[1:]) | ~(increments > 0)
+            if not np.isfinite(joined_time[0]) or wrong.any():
+                row = first - (previous_time is not None) + (int(np.argmax(wrong)) + 1 if wrong.any() else 0)
+                raise SfmnetError(f"time at row {row} (0-based) is not a number above the row before: rows must be in time order")
+            if len(increments):
+                medians.append(float(np.median(increments)))
+            preview_time.append(stamps[local])
+            previous_time = stamps[-1:]
+        previous = block[-1:]
+    variance = squares / f - (total / f) ** 2
+    spread = variance > 0
+    ratio = float(np.mean(steps[spread] / max(f - 1, 1) / (2 * variance[spread]))) if spread.any() else 0.0
+    return SerialScan(
+        ratio=ratio,
+        period=float(np.median(medians)) if medians else (None if time is None else 1.0),
+        step=np.where(np.isfinite(smallest), smallest, 0.0),
+        preview_rows=preview_rows,
+        preview_time=np.concatenate(preview_time) if time is not None else None,
+        preview_readings=np.concatenate(preview),
+        time=time,
+    )
+
+
+def moving_variances(readings: Rows, half: int, chunk_rows: int) -> Iterator[tuple[int, np.ndarray]]:
+    """``(first row, b x p)`` blocks: each row's variance over rows ``[i - half, i + half]`` (cut at the ends).
+
+    Each chunk is read with ``half`` rows either side and shifted by its first row, so the
+    cumulative sums stay small, and the same rows give the same numbers however they are read.
+    """
+    f = readings.shape[0]
+    for first in range(0, f, chunk_rows):
+        stop = min(f, first + chunk_rows)
+        start, end = max(0, first - half), min(f, stop + half)
+        block = np.asarray(readings[start:end], dtype=np.float64)
+        block = block - block[0]
+        sums = np.concatenate([np.zeros((1, block.shape[1])), np.cumsum(block, axis=0)])
+        squares = np.concatenate([np.zeros((1, block.shape[1])), np.cumsum(block**2, axis=0)])
+        rows = np.arange(first, stop)
+        low, high = np.maximum(rows - half, 0) - start, np.minimum(rows + half + 1, f) - start
+        count = (high - low)[:, None]
+        mean = (sums[high] - sums[low]) / count
+        yield first, np.maximum((squares[high] - squares[low]) / count - mean**2, 0.0)
+
+
+def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, chunk_rows: int) -> np.ndarray:
+    """``p``: each channel's noise standard deviation, from the ``quantile`` of its windowed standard deviations.
+
+    A window of ``L = 2 half + 1`` rows of Gaussian noise has ``L v / sigma^2 ~ chi2(L - 1)``, so
+    the quantile of ``v`` is divided by the chi-square quantile over ``L``; the floor is at
+    least the channel's quantisation (its smallest step over sqrt(12)).
+    """
+    f = readings.shape[0]
+    stride = max(1, math.ceil(f / NOISE_SAMPLES))
+    sampled = []
+    for first, variance in moving_variances(readings, half, chunk_rows):
+        sampled.append(variance[(-first) % stride :: stride])
+    dof = 2 * half
+    z = NormalDist().inv_cdf(quantile)
+    chi2_quantile = dof * max(1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof)), 0.05) ** 3  # Wilson-Hilferty
+    floor = np.sqrt(np.quantile(np.concatenate(sampled), quantile, axis=0) * (dof + 1) / chi2_quantile)
+    return np.maximum(floor, step / math.sqrt(12))
+
+
+def static_runs(quiet: np.ndarray, min_rows: int) -> np.ndarray:
+    """``k x 2`` half-open ``[first, stop)`` runs of True in ``quiet`` (``f`` bool) at least ``min_rows`` long."""
+    edges = np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]]))
+    runs = np.stack([np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]], axis=1).astype(np.int64)
+    return runs[runs[:, 1] - runs[:, 0] >= min_rows].reshape(-1, 2)

@@ -1,0 +1,71 @@
+"""What a run says about the static intervals it fitted: a CSV, metrics, a console line and a figure."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+from lightning.pytorch.loggers import TensorBoardLogger
+from matplotlib import pyplot as plt
+
+from sfmnet.data.recording import CalibrationData
+from sfmnet.eval.figures import static_intervals_figure
+from sfmnet.io import save_figure_atomic, write_bytes_atomic
+from sfmnet.preprocessing.static_intervals import StaticIntervals
+
+
+def report_static_intervals(data: CalibrationData, run_dir: Path) -> dict[str, float]:
+    """Write ``static_intervals.csv`` and ``figures/static_intervals.png`` (also in TensorBoard), print one line.
+
+    Returns:
+        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total`` (empty without detection).
+    """
+    detection = data.static_intervals
+    if detection is None:
+        return {}
+    line = describe(detection)
+    print(line)
+    if not detection.independent:
+        write_bytes_atomic(run_dir / "static_intervals.csv", intervals_csv(detection).encode())
+        figure = static_intervals_figure(detection, data.channels, line.replace("static intervals: ", "Static intervals: ", 1))
+        save_figure_atomic(figure, run_dir / "figures" / "static_intervals.png")
+        logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version="static_intervals")
+        logger.experiment.add_figure("static_intervals", figure, close=False)
+        logger.experiment.flush()
+        plt.close(figure)
+    return {
+        "static/intervals": float(detection.count),
+        "static/rows_kept": float(detection.rows_kept),
+        "static/rows_total": float(len(detection.mask)),
+    }
+
+
+def describe(detection: StaticIntervals) -> str:
+    """One line: how many intervals and rows were kept, with the settings used."""
+    kept, total = detection.rows_kept, len(detection.mask)
+    if detection.independent:
+        return (
+            f"static intervals: none needed, consecutive rows are as different as any two (independent poses, "
+            f"serial ratio {detection.serial_ratio:.2f}): {kept:,} of {total:,} rows kept"
+        )
+    if detection.period is None:
+        settings = f"window {detection.window_rows} rows, intervals of at least {detection.min_rows} rows"
+    else:
+        window, shortest = detection.window_rows * detection.period, detection.min_rows * detection.period
+        settings = f"window {window:.3g} s, intervals of at least {shortest:.3g} s"
+    return (
+        f"static intervals: {detection.count} found, {kept:,} of {total:,} rows kept "
+        f"({settings}, threshold {detection.threshold:g} x the noise variance)"
+    )
+
+
+def intervals_csv(detection: StaticIntervals) -> str:
+    """One row per interval: index, first and last row (0-based data rows), start and end time (s), rows."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["interval", "first_row", "last_row", "start_time", "end_time", "rows"])
+    for k, (first, stop) in enumerate(detection.intervals.tolist()):
+        times = ["", ""] if detection.interval_times is None else [f"{t:.6g}" for t in detection.interval_times[k]]
+        writer.writerow([k, first, stop - 1, *times, stop - first])
+    return buffer.getvalue()

@@ -1,0 +1,92 @@
+"""No orientation prior that is not in the data: the marginal refinement learns the distribution of directions."""
+
+from __future__ import annotations
+
+import functools
+
+import pytest
+import torch
+from hydra.utils import instantiate
+
+from sfmnet.data.simulated_sensor import FingertipDataModule
+from sfmnet.data.simulation import ORIENTATION_LAWS, oriented_directions
+from sfmnet.linalg.frame import orthogonal_procrustes
+from sfmnet.linalg.uncertainty import shape_information
+from sfmnet.models.shape_from_motion import ShapeFromMotion
+from sfmnet.training.fitting import refine_in_process
+from tests.conftest import compose_config
+
+
+def refined(model: ShapeFromMotion, recording, epochs: int = 10) -> ShapeFromMotion:
+    """The closed form, then the trainer's steps (conf/optimizer/lbfgs.yaml), in this process."""
+    return refine_in_process(model, recording, lbfgs(), epochs)
+
+
+@functools.cache
+def lbfgs():
+    return instantiate(compose_config().optimizer)
+
+
+@pytest.mark.parametrize("law", ORIENTATION_LAWS)
+def test_laws_stay_in_their_zone(law: str):
+    generator = torch.Generator().manual_seed(0)
+    sphere = oriented_directions(law, 600, 3, generator)
+    circle = oriented_directions(law, 600, 2, generator)
+    ones = torch.ones(600, dtype=torch.float64)
+    assert torch.allclose(sphere.norm(dim=1), ones) and torch.allclose(circle.norm(dim=1), ones)
+    if law == "hemisphere":
+        assert (sphere[:, 2] >= 0).all() and (circle[:, 1] >= 0).all()
+    if law == "band":
+        assert (sphere[:, 2].abs() <= 0.5 + 1e-12).all() and (circle[:, 1].abs() <= 0.5 + 1e-12).all()
+    if law == "cone":
+        assert (sphere[:, 2] >= 0.5 - 1e-12).all() and (circle[:, 1] >= 0.5 - 1e-12).all()
+    if law == "poses":
+        assert len(sphere.unique(dim=0)) == 12 and len(circle.unique(dim=0)) == 12
+
+
+def cone_sessions(seeds: range, snr: float):
+    """Tared fingertip sessions, orientations within 60 degrees of +fy, no known loads: recording, true S, trace of the bound."""
+    for seed in seeds:
+        datamodule = FingertipDataModule(
+            magnitude=111.4, samples=96, known_loads=0, mirror_hint=False, noise_fraction=1 / snr,
+            orientation_law="cone", seed=seed, errors={"angle_error_deg": 0.0},
+        )
+        datamodule.setup()
+        recording = datamodule.data.recordings["rotation"]
+        truth = torch.linalg.pinv(datamodule.data.truth.matrix.T)
+        noise = float(truth.norm(dim=0).mean()) * recording.magnitude / snr
+        directions = recording.true_loads / recording.magnitude
+        maps = recording.magnitude * torch.eye(2, dtype=truth.dtype).expand(len(directions), 2, 2)
+        information = shape_information(truth, directions[:0], directions, maps, estimate_offset=False)
+        yield recording, truth, noise**2 * float(torch.linalg.pinv(information, hermitian=True).diagonal().sum())
+
+
+def squared_error(model: ShapeFromMotion, truth: torch.Tensor) -> float:
+    """``|S - S_true|^2`` after the best rotation (no known load fixes the frame)."""
+    shape = model.physical_shape()
+    return float((orthogonal_procrustes(shape.T, truth.T).T @ shape - truth).pow(2).sum())
+
+
+def test_learnt_orientation_law_is_unbiased_where_a_uniform_prior_is_not(monkeypatch):
+    """Cone law at SNR 5: the learnt-prior marginal within 1.2x the bound, the uniform prior's about 1.5x (bench)."""
+    learnt = uniform = bound = 0.0
+    sessions = list(cone_sessions(range(8), snr=5.0))
+    for recording, truth, trace in sessions:
+        model = refined(ShapeFromMotion(estimate_offset=False), recording)
+        assert model.refinement == "marginal", "auto takes the marginal likelihood at SNR 5 on the circle"
+        learnt += squared_error(model, truth)
+        bound += trace
+    # The same refinement with the distribution of directions held uniform: the old, biased prior.
+    monkeypatch.setattr(ShapeFromMotion, "update_prior", lambda self, batch: None)
+    for recording, truth, _ in sessions:
+        uniform += squared_error(refined(ShapeFromMotion(estimate_offset=False, refinement="marginal"), recording), truth)
+    assert (learnt / bound) ** 0.5 < 1.2, (learnt / bound) ** 0.5
+    assert learnt < 0.6 * uniform, (learnt, uniform)
+
+
+def test_auto_keeps_the_alternation_where_the_grid_cannot_resolve_a_direction():
+    """At SNR 100 one sample's direction is sharper than the grid: a learnt prior would snap it, so auto alternates."""
+    recording, _, _ = next(cone_sessions(range(1), snr=100.0))
+    model = ShapeFromMotion(estimate_offset=False)
+    model.initialise(recording)
+    assert model.refinement == "alternation"

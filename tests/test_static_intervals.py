@@ -1,0 +1,107 @@
+"""Static intervals of continuous recordings: the detector, and calibrations that leave the rows in motion out."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from sfmnet.calibration import Calibration
+from sfmnet.data.simulated_stream import ContinuousRecording, simulate_stream, stream_sensor, write_stream_csv
+from sfmnet.linalg.wrench import STANDARD_GRAVITY
+from sfmnet.preprocessing.static_intervals import find_static_intervals
+from sfmnet.training.run import train
+from tests.conftest import compose_config, write_session
+
+MASS = 0.8
+
+
+def stream(seed: int = 0, poses: int = 12, orientation: str = "uniform") -> tuple[ContinuousRecording, ContinuousRecording]:
+    """A continuous recording (starting in motion, no rest) and a fresh one of the same sensor."""
+    generator = torch.Generator().manual_seed(seed)
+    sensor = stream_sensor(8, MASS * STANDARD_GRAVITY, noise_fraction=0.0005, offset_scale=0.2, generator=generator)
+    first = simulate_stream(sensor, MASS, poses=poses, orientation=orientation, rate=50.0, generator=generator)
+    return first, simulate_stream(sensor, MASS, poses=poses, orientation=orientation, rate=50.0, generator=generator)
+
+
+def calibrate(
+    path: Path, run_dir: Path, *overrides: str, experiment: str = "calibrate_csv", magnitude: float = MASS * STANDARD_GRAVITY
+) -> dict[str, float]:
+    cfg = compose_config([
+        f"experiment={experiment}", f"data.path={path}", f"data.magnitude={magnitude}",
+        "data.time_column=time", *overrides,
+    ])
+    return train(cfg, run_dir)
+
+
+def force_error(run_dir: Path, test: ContinuousRecording) -> float:
+    calibration = Calibration.load(run_dir / "calibration.json")
+    loads = calibration.apply(test.readings[test.static])
+    return float((loads - test.loads[test.static]).pow(2).sum(dim=1).mean().sqrt())
+
+
+@pytest.mark.parametrize("orientation", ["uniform", "below"])
+def test_detector_finds_every_interval_without_a_rest_period(orientation: str):
+    recording, _ = stream(orientation=orientation)
+    assert not recording.static[0]  # the recording starts in a move
+    found = find_static_intervals(recording.readings.numpy(), recording.time.numpy())
+    true = recording.intervals.numpy()
+    assert found.count == len(true) and not found.independent
+    assert np.abs(found.intervals - true).max() <= found.window_rows
+    assert not (found.mask & ~recording.static.numpy()).any()
+    assert found.noise_floor == pytest.approx(np.full(8, float(stream_noise(recording))), rel=0.25)
+    # Chunks overlap by half a window: reading in small chunks changes nothing but rounding.
+    chunked = find_static_intervals(recording.readings.numpy(), recording.time.numpy(), chunk_rows=997)
+    assert np.array_equal(chunked.mask, found.mask)
+    np.testing.assert_allclose(chunked.statistic, found.statistic, rtol=1e-5)
+
+
+def stream_noise(recording: ContinuousRecording) -> float:
+    """The noise std seen in the first static interval (the simulated sensor's noise)."""
+    first, stop = recording.intervals[0].tolist()
+    return float(recording.readings[first:stop].std(dim=0).mean())
+
+
+def test_independent_poses_are_not_a_stream(tmp_path: Path):
+    """One sample per pose (conftest's session, which has a time column): every row is kept."""
+    write_session(tmp_path / "session.csv")
+    with (tmp_path / "session.csv").open() as stream_file:
+        rows = list(csv.DictReader(stream_file))
+    readings = np.array([[float(row[f"s{i}"]) for i in range(6)] for row in rows])
+    found = find_static_intervals(readings, np.array([float(row["time"]) for row in rows]))
+    assert found.independent and found.mask.all() and found.serial_ratio > 0.5
+    metrics = calibrate(tmp_path / "session.csv", tmp_path / "run", magnitude=9.81)
+    assert metrics["static/rows_kept"] == metrics["static/rows_total"] == len(rows)
+    assert not (tmp_path / "run" / "static_intervals.csv").exists()
+
+
+def test_calibration_from_a_stream_matches_the_static_rows_alone(tmp_path: Path):
+    recording, test = stream()
+    write_stream_csv(recording, tmp_path / "stream.csv")
+    write_stream_csv(recording, tmp_path / "static.csv", rows=recording.static)
+    metrics = calibrate(tmp_path / "stream.csv", tmp_path / "detected")
+    calibrate(tmp_path / "static.csv", tmp_path / "static_only", "data.static_intervals=false")
+    calibrate(tmp_path / "stream.csv", tmp_path / "every_row", "data.static_intervals=false")
+    detected, static_only, every_row = (force_error(tmp_path / name, test) for name in ("detected", "static_only", "every_row"))
+    assert detected <= 1.25 * static_only
+    assert every_row > 3 * static_only  # the rows in motion spoil it: this test can fail
+    assert metrics["static/intervals"] == len(recording.intervals)
+    table = (tmp_path / "detected" / "static_intervals.csv").read_text().splitlines()
+    assert table[0] == "interval,first_row,last_row,start_time,end_time,rows" and len(table) == 1 + len(recording.intervals)
+    assert (tmp_path / "detected" / "figures" / "static_intervals.png").stat().st_size > 10_000
+
+
+def test_streamed_keeps_the_same_rows_as_in_memory(tmp_path: Path):
+    recording, _ = stream(poses=10)
+    write_stream_csv(recording, tmp_path / "stream.csv")
+    in_memory = calibrate(tmp_path / "stream.csv", tmp_path / "memory")
+    streamed = calibrate(tmp_path / "stream.csv", tmp_path / "streamed", "data.block_rows=700", experiment="calibrate_stream")
+    for key in ("static/intervals", "static/rows_kept", "static/rows_total"):
+        assert streamed[key] == in_memory[key]
+    assert (tmp_path / "streamed" / "static_intervals.csv").read_text() == (tmp_path / "memory" / "static_intervals.csv").read_text()
+    matrices = [np.array(json.loads((tmp_path / name / "calibration.json").read_text())["matrix"]) for name in ("memory", "streamed")]
+    assert np.abs(matrices[0] - matrices[1]).max() <= 1e-6 * np.abs(matrices[0]).max()
