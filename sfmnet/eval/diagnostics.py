@@ -66,6 +66,7 @@ def calibration_diagnostics(
     # An unconstrained row's load is free in all n dimensions; a constrained one has d - 1 free.
     direction_dims = directions.shape[1] + (0 if model.constrained else 1)
     known = recording.known
+    groups = same_load_groups(recording)
     goodness = goodness_of_fit(
         residuals,
         recording.readings,
@@ -73,7 +74,7 @@ def calibration_diagnostics(
         direction_dims,
         uncertainty.noise_std,
         bool(getattr(model, "robust", None)),
-        recording.groups,
+        groups,
         model.motion_of(recording.readings[known]),
         recording.loads[known],
         matrix,
@@ -81,3 +82,15 @@ def calibration_diagnostics(
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
+
+
+def same_load_groups(recording: CalibrationRecording) -> torch.Tensor | None:
+    """The recording's groups split so that each holds rows of one load: one pose under another mass
+    configuration, or with another known load, is another load (the checks compare rows of one load)."""
+    if recording.groups is None:
+        return None
+    configuration = recording.row_configuration.to(recording.loads.dtype)
+    # NaN (unknown) loads compare equal to each other this way.
+    loads = torch.nan_to_num(recording.loads, nan=math.inf)
+    key = torch.cat([recording.groups[:, None].to(loads.dtype), configuration[:, None], loads], dim=1)
+    return torch.unique(key, dim=0, return_inverse=True)[1]

@@ -192,8 +192,9 @@ class ShapeFromMotion(LinearCalibrator):
         """
         d = self.direction_maps.shape[1]
         spacing = (2 * math.pi if d == 2 else math.sqrt(4 * math.pi)) / self.grid_size(d) ** (1 / (d - 1))
-        singular = torch.linalg.svdvals(self.direction_maps[0] @ self.shape.detach()) * self.reading_scale
-        return spacing < noise / float(singular.pow(2).mean().sqrt())
+        # Snapping starts in the sharpest likelihood: the mass configuration with the strongest signal.
+        singular = torch.linalg.svdvals(self.direction_maps @ self.shape.detach()) * self.reading_scale
+        return spacing < noise / float(singular.pow(2).mean(dim=1).sqrt().max())
 
     def grid_log_likelihood(self, rows: torch.Tensor, configuration: int) -> torch.Tensor:
         """``-|z_j - o - u_k D_c S|^2 / 2 s^2`` for ``b`` offset-free rows (``b x p``, dimensionless) and grid point ``k``: ``b x K``."""
