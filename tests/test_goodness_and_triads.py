@@ -18,6 +18,7 @@ from sfmnet.calibration import calibration_matrix
 from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.data.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
+from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import LearnerModule
 from sfmnet.training.run import train
@@ -44,7 +45,8 @@ def triad_session(seed: int, rows: int = 300, snr: float = 100.0, known: int = 3
 def fit(recording: CalibrationRecording, **model_options) -> ShapeFromMotion:
     # As the CLI does (threads=1): tiny solves on a thread pool wait on each other.
     torch.set_num_threads(1)
-    data = CalibrationData(recordings={"rotation": recording}, channels=["a", "b", "c"], axes=["x", "y", "z"], load_unit="m/s^2")
+    channels = [f"c{i}" for i in range(recording.readings.shape[1])]
+    data = CalibrationData(recordings={"rotation": recording}, channels=channels, axes=["x", "y", "z"], load_unit="N")
     datamodule = FixedCalibrationDataModule(data)
     model = ShapeFromMotion(**model_options)
     trainer = L.Trainer(
@@ -90,6 +92,59 @@ def test_huber_loss_keeps_a_few_bad_rows_from_pulling_the_shape():
         model = fit(recording, refinement="alternation", robust=robust)
         errors[robust] = float((model.calibration_matrix() - true_matrix).norm() / true_matrix.norm())
     assert errors["huber"] < errors[None] / 3
+
+
+def one_row_poses(seed: int, slip: float = 1.0, bumps: int = 0) -> CalibrationRecording:
+    """300 orientations of one 1 kg mass, one row each, on an 8-channel sensor: nothing to group, nothing repeated."""
+    generator = np.random.default_rng(seed)
+    shape, offset = generator.normal(size=(3, 8)) * 0.05, generator.normal(size=8) * 0.3
+    directions = generator.normal(size=(300, 3))
+    loads = 9.80665 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    loads[150:] *= slip
+    readings = loads @ shape + offset + generator.normal(scale=0.002, size=(300, 8))
+    readings[10 : 10 + bumps] += generator.normal(size=(bumps, 3)) * 4 @ shape
+    given = np.full((300, 3), np.nan)
+    given[:3] = loads[:3]
+    return CalibrationRecording(readings=torch.from_numpy(readings), loads=torch.from_numpy(given), magnitude=9.80665)
+
+
+def checked(recording: CalibrationRecording, **model_options):
+    model = fit(recording, **model_options)
+    loads = model.fitted_loads(recording)
+    bars = model.uncertainty(recording, loads)
+    _, _, goodness = calibration_diagnostics(model, recording, [f"c{i}" for i in range(8)], loads, bars, "N")
+    return goodness, bars
+
+
+def test_a_slipped_mass_is_flagged_with_no_repeated_pose():
+    """With p > n the readings off the load space measure the noise, so the magnitudes can be judged row by row."""
+    clean, _ = checked(one_row_poses(0), refinement="alternation")
+    assert clean.trustworthy and clean.metrics["goodness/constraint_noise_ratio"] < 1.1
+    slipped, _ = checked(one_row_poses(0, slip=0.97), refinement="alternation")
+    assert not slipped.trustworthy and slipped.metrics["goodness/constraint_noise_ratio"] > 3
+
+
+def test_huber_error_bars_describe_the_rows_it_kept(tmp_path: Path):
+    relative = {}
+    for name, bumps, robust in (("clean", 0, "null"), ("bumped", 5, "huber"), ("plain", 5, "null")):
+        recording = one_row_poses(1, bumps=bumps)
+        table = np.concatenate([recording.readings.numpy(), recording.loads.numpy()], axis=1)
+        header = ",".join([*(f"s{i}" for i in range(8)), "fx", "fy", "fz"])
+        np.savetxt(tmp_path / f"{name}.csv", table, delimiter=",", header=header, comments="")
+        cfg = compose_config(
+            ["experiment=calibrate_csv", f"data.path={tmp_path / name}.csv", "data.magnitude=9.80665", f"model.robust={robust}"]
+        )
+        metrics = train(cfg, tmp_path / name)
+        relative[name] = metrics["matrix_std_relative"]
+        calibration = json.loads((tmp_path / name / "calibration.json").read_text())
+        if robust == "huber":
+            assert sorted(calibration["outlier_rows"]) == list(range(10, 15)) and calibration["error_bars_trustworthy"]
+        elif bumps:
+            # Pulled by the bumps, plain least squares pushes good rows off the model too.
+            assert set(range(10, 15)) <= set(calibration["outlier_rows"]) and not calibration["error_bars_trustworthy"]
+    # The bumps inflate plain least squares' noise; Huber's bars are those of the clean session.
+    assert relative["plain"] > 2 * relative["clean"]
+    assert relative["bumped"] == pytest.approx(relative["clean"], rel=0.1)
 
 
 def calibrate(path: Path, run_dir: Path, *overrides: str) -> tuple[dict, dict]:

@@ -102,6 +102,10 @@ WHITESPACE_SUFFIXES = (".txt", ".dat", ".tsv")
 def _read_whitespace(path: Path, columns: list[str] | None) -> Table:
     """A numeric table separated by spaces or tabs; named by ``columns``, else by its first line."""
     header = None if columns else path.open().readline().split()
+    if header and all(_number(name) is not None for name in header):
+        raise SfmnetError(
+            f"{path} has no header row (its first line is numbers): name its {len(header)} columns with data.columns=[...]"
+        )
     array = np.loadtxt(path, ndmin=2, skiprows=0 if columns else 1, dtype=np.float64)
     return _from_array(path, array, columns or header)
 

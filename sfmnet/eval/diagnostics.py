@@ -79,6 +79,7 @@ def calibration_diagnostics(
         recording.loads[known],
         matrix,
         load_unit,
+        constraint_terms(model, recording),
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
@@ -94,3 +95,16 @@ def same_load_groups(recording: CalibrationRecording) -> torch.Tensor | None:
     loads = torch.nan_to_num(recording.loads, nan=math.inf)
     key = torch.cat([recording.groups[:, None].to(loads.dtype), configuration[:, None], loads], dim=1)
     return torch.unique(key, dim=0, return_inverse=True)[1]
+
+
+def constraint_terms(model: LinearCalibrator, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor, float] | None:
+    """What :func:`~sfmnet.eval.goodness_of_fit.constraint_noise_ratio` needs, where it applies: more
+    channels than axes, one constant magnitude, unknown-load rows, a constrained model."""
+    unknown = ~recording.known
+    p, n = recording.readings.shape[1], recording.rank
+    if p <= n or recording.direction_maps is not None or not model.constrained or int(unknown.sum()) <= n:
+        return None
+    readings = recording.readings[unknown]
+    loads = model.motion_of(readings)
+    off_space = readings - model.physical_offset() - loads @ model.physical_shape()
+    return loads, off_space, recording.magnitude

@@ -24,6 +24,9 @@ from sfmnet.linalg.group_means import group_means
 MAX_NOISE_RATIO = 1.5
 # A row is an outlier beyond this standard-normal quantile of its chi-square residual (p ~ 1e-4).
 OUTLIER_Z = 3.72
+# The standardised magnitudes' RMS may exceed 1 by this much (1.25 measured with a 1 % quadratic term,
+# whose matrix errors were 1.8x the error bars).
+MAX_CONSTRAINT_RATIO = 1.2
 # Pose means may miss the model by this much more than white noise within the poses explains.
 MAX_POSE_MISFIT_RATIO = 2.0
 # Outliers are a problem once there are more than a handful beyond what the tail itself predicts.
@@ -87,6 +90,31 @@ def pose_misfit_ratio(residuals: torch.Tensor, groups: torch.Tensor, dof: torch.
         return math.nan
     scaled = counts[several] * means[several].pow(2).sum(dim=1) / row_dof[several]
     return math.sqrt(float(scaled.mean())) / noise
+
+
+def constraint_noise_ratio(loads: torch.Tensor, off_space: torch.Tensor, matrix: torch.Tensor, magnitude: float) -> float:
+    """How far the rows' load magnitudes are from ``F`` against what the noise off the load space predicts.
+
+    With more channels than axes (``p > n``) a linear sensor's readings off the row space of ``S``
+    are pure noise, whatever the loads: ``sigma^2 = |Z (I - P)|^2 / ((f - n) (p - n))``. Each row's
+    least-squares load ``m_j = C (z_j - o)`` then has ``|m_j| - F ~ N(0, sigma^2 u_j C C^T u_j^T)``
+    (``u_j`` its direction) if the mass's magnitude is constant and the sensor linear. The RMS of
+    the standardised magnitudes is ~1 then; a slipped mass, a load that is not the calibration mass
+    or a nonlinear sensor raise it, even with no repeated pose to compare against.
+
+    Args:
+        loads: ``f x n`` least-squares loads of the unknown-load rows; off_space: ``f x p`` their
+            readings' component off the row space of ``S`` (raw units); matrix: ``C``, ``n x p``.
+    """
+    f, p = off_space.shape
+    n = loads.shape[1]
+    dof = (f - n) * (p - n)
+    if dof <= 0:
+        return math.nan
+    noise = math.sqrt(float(off_space.pow(2).sum()) / dof)
+    directions = loads / loads.norm(dim=1, keepdim=True)
+    spread = noise * (directions @ matrix).norm(dim=1)
+    return float(((loads.norm(dim=1) - magnitude) / spread).pow(2).mean().sqrt())
 
 
 def chi_square_quantile(dof: int, z: float) -> float:
@@ -158,6 +186,7 @@ def goodness_of_fit(
     known_loads: torch.Tensor,
     matrix: torch.Tensor,
     load_unit: str,
+    constraint: tuple[torch.Tensor, torch.Tensor, float] | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -173,12 +202,16 @@ def goodness_of_fit(
         calibrated_known: ``k x n``, ``C (z - o)`` of the known rows; known_loads: ``k x n``.
         matrix: ``C``, ``n x p``.
         load_unit: for the messages.
+        constraint: with more channels than axes and one constant magnitude: the unknown rows'
+            least-squares loads, their readings off the load space and ``F``
+            (:func:`constraint_noise_ratio`).
 
     Returns:
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
         ``goodness/pose_misfit_ratio`` (:func:`pose_misfit_ratio`; with groups),
         ``goodness/outliers``, ``goodness/outlier_fraction``, ``goodness/robust_noise``,
-        ``goodness/known_load_rms`` and ``goodness/known_load_ratio`` (with known loads).
+        ``goodness/known_load_rms`` and ``goodness/known_load_ratio`` (with known loads),
+        ``goodness/constraint_noise_ratio`` (with ``constraint``).
     """
     p = residuals.shape[1]
     metrics: dict[str, float] = {}
@@ -205,6 +238,17 @@ def goodness_of_fit(
                     "(noise correlated in time, e.g. tremor or drift, or a sensor that is not linear): the error "
                     f"bars assume white noise and are about {misfit:.0f}x too small"
                 )
+    if constraint is not None:
+        ratio = constraint_noise_ratio(constraint[0], constraint[1], matrix, constraint[2])
+        metrics["goodness/constraint_noise_ratio"] = ratio
+        # ratio^2 is a chi-square mean over f rows: 1 +- sqrt(2 / f) for a model that fits.
+        significant = ratio**2 > 1 + 4 * math.sqrt(2 / len(constraint[0]))
+        if ratio > MAX_CONSTRAINT_RATIO and significant and not robust:
+            warnings.append(
+                f"the rows' load magnitudes scatter {ratio:.2f}x more about the calibration magnitude than the noise "
+                "off the load space explains: the load is not one constant magnitude (a slipped or wrong mass, rows "
+                "in motion) or the sensor is not linear"
+            )
     count = int(outliers.sum())
     metrics.update(
         {"goodness/outliers": float(count), "goodness/outlier_fraction": count / len(residuals), "goodness/robust_noise": robust_noise}
@@ -213,8 +257,8 @@ def goodness_of_fit(
     if count > OUTLIER_ALLOWANCE + 10 * 1e-4 * len(residuals) and not robust:
         warnings.append(
             f"{count} of {len(residuals)} rows ({100 * count / len(residuals):.1f} %) are far off the model "
-            "(motion, bumps, a slipped mass): give a time column so static intervals are found, remove them, "
-            "or set model.robust=huber"
+            "(motion, bumps, a slipped mass, a misapplied known load, a nonlinear sensor): remove them (outlier_rows "
+            "in calibration.json), fit only the static intervals (a time column), or set model.robust=huber"
         )
     worst = residuals.pow(2).sum(dim=1)[outliers].argsort(descending=True)
     outlier_rows = torch.nonzero(outliers)[:, 0][worst].tolist()

@@ -31,6 +31,13 @@ from sfmnet.models.losses import metric_constraint_loss, reconstruction_loss
 
 REFINEMENTS = ("auto", "alternation", "penalty", "marginal")
 ROBUST_LOSSES = (None, "huber")
+# Below this signal-to-noise ratio (F |s| / noise, from the closed form) "auto" takes the marginal
+# likelihood. Measured over the orientation laws of bench/crb_ratio.py --laws: at SNR 20 and below
+# the marginal with its learnt distribution of directions is at or near the bound where the
+# alternation's incidental-parameter bias shows (and with offsets on non-uniform laws the
+# alternation can run away); at SNR 100 the grid is too coarse for the sharp likelihoods on the
+# sphere (2-3x the bound) while the alternation is at it.
+MARGINAL_BELOW_SNR = 50.0
 # Smoothed EM steps of the directions' distribution per training step of the marginal refinement.
 PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
@@ -73,9 +80,8 @@ class ShapeFromMotion(LinearCalibrator):
       direction integrated over a grid (:meth:`marginal_loss`) weighted by the distribution of
       directions, which is learnt with the shape (smoothed EM, :meth:`update_prior`), the noise level
       too: no per-sample parameters, so no incidental-parameter bias, and no assumed orientation law.
-    - ``"auto"`` (default): ``"marginal"`` where its grid resolves one sample's angular spread as
-      estimated from the closed form (:meth:`grid_resolves`: SNR below about 58 for 4 channels on the
-      circle, 9 for 6 on the sphere), else ``"alternation"``.
+    - ``"auto"`` (default): ``"marginal"`` below ``MARGINAL_BELOW_SNR`` as estimated from the
+      closed form, else ``"alternation"``.
 
     Args:
         rank: ``n``, the number of load axes (2, 3, 6, ...); None takes it from the data.
@@ -159,7 +165,7 @@ class ShapeFromMotion(LinearCalibrator):
             noise = self.closed_form_noise(recording)
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":
-            low_snr = self.constrained and self.grid_resolves(noise)
+            low_snr = self.constrained and self.snr < MARGINAL_BELOW_SNR
             self.refinement = "marginal" if low_snr and not self.robust else "alternation"
         if self.refinement == "marginal":
             self.start_marginal(noise)
@@ -182,19 +188,6 @@ class ShapeFromMotion(LinearCalibrator):
     def grid_size(self, dims: int) -> int:
         """Directions in the marginal's grid: ``marginal_grid``, else 512 on a circle and 2000 on a sphere."""
         return self.marginal_grid or (512 if dims == 2 else 2000)
-
-    def grid_resolves(self, noise: float) -> bool:
-        """Whether the marginal's grid spacing is under one sample's angular spread ``noise / (F rms(sv(S)))``.
-
-        ``noise`` in raw units. Where it is not (high SNR: 58 on a 4-channel circle, 9 on a 6-channel
-        sphere), a learnt distribution of directions would snap them to grid points, and "auto" takes the
-        alternation, whose incidental-parameter bias is then small.
-        """
-        d = self.direction_maps.shape[1]
-        spacing = (2 * math.pi if d == 2 else math.sqrt(4 * math.pi)) / self.grid_size(d) ** (1 / (d - 1))
-        # Snapping starts in the sharpest likelihood: the mass configuration with the strongest signal.
-        singular = torch.linalg.svdvals(self.direction_maps @ self.shape.detach()) * self.reading_scale
-        return spacing < noise / float(singular.pow(2).mean(dim=1).sqrt().max())
 
     def grid_log_likelihood(self, rows: torch.Tensor, configuration: int) -> torch.Tensor:
         """``-|z_j - o - u_k D_c S|^2 / 2 s^2`` for ``b`` offset-free rows (``b x p``, dimensionless) and grid point ``k``: ``b x K``."""

@@ -113,6 +113,11 @@ def fit_method(
     diagnostics, warnings, goodness = calibration_diagnostics(
         model, recording, data.channels, loads, uncertainty, data.load_unit
     )
+    if getattr(model, "robust", None) and goodness.outlier_rows:
+        # A robust fit down-weighted its outliers: its error bars describe the rows it kept.
+        outlying = torch.zeros(len(loads), dtype=torch.bool)
+        outlying[goodness.outlier_rows] = True
+        uncertainty = model.uncertainty(recording.without(outlying), loads[~outlying])
     warnings = [*model.fit_warnings, *warnings]
     calibration = Calibration(
         matrix=model.calibration_matrix(),
