@@ -227,3 +227,14 @@ def test_imu_accelerometer_matches_the_triad_baseline(tmp_path: Path):
     )
     metrics = train(cfg, tmp_path / "whole")
     assert metrics["error_bars_trustworthy"] == 0 and metrics["goodness/outlier_fraction"] > 0.05
+
+
+def test_auto_says_when_a_long_low_snr_session_is_too_big_for_the_marginal():
+    recording, _, _ = triad_session(2, rows=12_000, snr=10, known=0)
+    model = ShapeFromMotion()
+    model.initialise(recording)
+    assert model.refinement == "alternation" and "model.refinement=marginal" in model.fit_warnings[0]
+    small, _, _ = triad_session(2, rows=500, snr=10, known=0)
+    model = ShapeFromMotion()
+    model.initialise(small)
+    assert model.refinement == "marginal" and not model.fit_warnings

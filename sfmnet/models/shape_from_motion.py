@@ -38,6 +38,9 @@ ROBUST_LOSSES = (None, "huber")
 # alternation can run away); at SNR 100 the grid is too coarse for the sharp likelihoods on the
 # sphere (2-3x the bound) while the alternation is at it.
 MARGINAL_BELOW_SNR = 50.0
+# Rows x grid directions beyond which "auto" does not take the marginal: each optimiser evaluation
+# touches every (row, direction) pair, and a fit makes hundreds (10,000 rows on the sphere: minutes).
+MARGINAL_MAX_CELLS = 2e7
 # Smoothed EM steps of the directions' distribution per training step of the marginal refinement.
 PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
@@ -124,6 +127,7 @@ class ShapeFromMotion(LinearCalibrator):
         if not huber_threshold > 0:
             raise SfmnetError(f"model.huber_threshold must be positive, got {huber_threshold}")
         self.robust = robust
+        self.notes: list[str] = []
         self.huber_threshold = huber_threshold
         self.rank = rank
         self.metric_weight = metric_weight
@@ -135,6 +139,10 @@ class ShapeFromMotion(LinearCalibrator):
         self.register_parameter("log_noise", None)
         self.register_buffer("direction_maps", None)
         self.register_buffer("row_configuration", None)
+
+    @property
+    def fit_warnings(self) -> list[str]:
+        return list(self.notes)
 
     @property
     def constrained(self) -> bool:
@@ -166,7 +174,14 @@ class ShapeFromMotion(LinearCalibrator):
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":
             low_snr = self.constrained and self.snr < MARGINAL_BELOW_SNR
-            self.refinement = "marginal" if low_snr and not self.robust else "alternation"
+            affordable = not low_snr or len(recording.readings) * self.grid_size(self.direction_maps.shape[1]) <= MARGINAL_MAX_CELLS
+            if low_snr and not self.robust and not affordable:
+                self.notes.append(
+                    f"SNR {self.snr:.0f} is low enough for the marginal refinement, but on {len(recording.readings):,} rows "
+                    "it would take long: the alternation was used, whose bias grows as 1/SNR^2; set "
+                    "model.refinement=marginal to insist, or fit pose means"
+                )
+            self.refinement = "marginal" if low_snr and not self.robust and affordable else "alternation"
         if self.refinement == "marginal":
             self.start_marginal(noise)
 
