@@ -165,7 +165,7 @@ def unreadable_npy(tmp_path: Path) -> Action:
     return lambda: train(cfg, tmp_path / "run")
 
 
-def continuous(tmp_path: Path, poses: int, known_in_motion: bool = False) -> Action:
+def continuous(tmp_path: Path, poses: int, known_in_motion: bool = False, known_at_edge: bool = False) -> Action:
     """A continuous recording (sfmnet/data/simulated_stream.py) calibrated with its time column (static intervals on)."""
     generator = torch.Generator().manual_seed(0)
     sensor = stream_sensor(6, 9.81, noise_fraction=0.001, offset_scale=0.2, generator=generator)
@@ -173,6 +173,9 @@ def continuous(tmp_path: Path, poses: int, known_in_motion: bool = False) -> Act
     if known_in_motion:
         # A load written on line 42 (data row 40), in the middle of the first move.
         recording.known_loads[40] = recording.loads[40]
+    if known_at_edge:
+        # One known row (line 75, data row 73) two samples before the first hold begins (row 75).
+        recording.known_loads[73] = recording.loads[75]
     write_stream_csv(recording, tmp_path / "stream.csv")
     cfg = compose_config([
         "experiment=calibrate_csv", f"data.path={tmp_path / 'stream.csv'}", "data.mass=1.0", "data.time_column=time",
@@ -206,6 +209,18 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "unreadable file": (unreadable_npy, r"cannot be read as .npy"),
     "too few static intervals": (lambda t: continuous(t, poses=6), r"6 static intervals found but a 3-axis calibration with offsets needs at least 9"),
     "known load in motion": (lambda t: continuous(t, poses=10, known_in_motion=True), r"the known load on line 42 of .*stream.csv was recorded in motion"),
+    "time cell empty": (
+        lambda t: calibrate(t, edit=set_cell(6, 0, "")),
+        r"the time of data row 4 \(0-based\) is empty or not a number: rows must be in strictly increasing time order",
+    ),
+    "time out of order": (
+        lambda t: calibrate(t, edit=set_cell(6, 0, "0.001")),
+        r"the time of data row 4 \(0-based\) is not after the row before's",
+    ),
+    "known load at an interval's edge": (
+        lambda t: continuous(t, poses=10, known_at_edge=True),
+        r"the known load on line 75 of .*stream.csv lies at the edge of a static interval",
+    ),
     # train, a calibration streamed from its file (conf/data/calibration_rows.yaml)
     "stream: partly known load": (lambda t: stream(t, edit=blank_last_load), r"data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"),
     "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"data row 5 \(0-based\) has a NaN, empty or infinite channel cell"),

@@ -91,6 +91,16 @@ def fitted_rows(
             f"the known load on {where(int(moving[0]))} was recorded in motion (no static interval within a window): "
             "fill the load columns only while the mass is held still, or tune data.static"
         )
+    if not detection.independent and len(known):
+        # A run of consecutive known rows is one known pose: some of its rows may fall at an interval's
+        # end, but if all do, a known load would vanish without a word.
+        for run in np.split(known, np.nonzero(np.diff(known) > 1)[0] + 1):
+            if not detection.mask[run].any():
+                raise SfmnetError(
+                    f"the known load on {where(int(run[0]))} lies at the edge of a static interval, within a window of "
+                    "motion, so none of its rows would be fitted: fill the load columns on rows held still (the whole "
+                    "hold), or shorten data.static.window"
+                )
     needed = metric_unknowns(axes, True)
     if check_count and not detection.independent and detection.count < needed:
         raise SfmnetError(

@@ -237,8 +237,13 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int) -> SerialSca
             increments = np.diff(joined_time)
             wrong = ~np.isfinite(joined_time[1:]) | ~(increments > 0)
             if not np.isfinite(joined_time[0]) or wrong.any():
-                row = first - (previous_time is not None) + (int(np.argmax(wrong)) + 1 if wrong.any() else 0)
-                raise SfmnetError(f"time at row {row} (0-based) is not a number above the row before: rows must be in time order")
+                offset = int(np.argmax(wrong)) + 1 if wrong.any() else 0
+                row = first - (previous_time is not None) + offset
+                what = "empty or not a number" if not np.isfinite(joined_time[offset]) else "not after the row before's"
+                raise SfmnetError(
+                    f"the time of data row {row} (0-based) is {what}: rows must be in strictly increasing time order; "
+                    "repair or drop that row (or fit without static intervals: data.static_intervals=false)"
+                )
             if len(increments):
                 medians.append(float(np.median(increments)))
             preview_time.append(stamps[local])
