@@ -22,34 +22,23 @@ from omegaconf import OmegaConf
 from sfmnet.cli import config_dir
 from sfmnet.data.simulated_sensor import ForceSensor3DataModule
 from sfmnet.models.shape_from_motion import ShapeFromMotion
+from sfmnet.training.fitting import refine_in_process
 from sfmnet.training.learner_module import matrix_error
 
 TOLERANCE = 1e-6
 
 
-def trajectory(model: ShapeFromMotion, batch, epochs: int) -> tuple[list[torch.Tensor], list[float]]:
-    """Calibration matrices and elapsed seconds after each epoch of the model's refinement."""
+def trajectory(model: ShapeFromMotion, recording, epochs: int) -> tuple[list[torch.Tensor], list[float]]:
+    """Calibration matrices and elapsed seconds after each epoch of the model's refinement (the trainer's steps)."""
     matrices, times = [], []
     started = time.perf_counter()
-    if model.alternating:
-        for _ in range(epochs):
-            model.alternate(batch)
-            times.append(time.perf_counter() - started)
-            matrices.append(model.calibration_matrix())
-        return matrices, times
-    make_optimizer = instantiate(OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml"))
-    optimizer = make_optimizer([p for p in model.parameters() if p.requires_grad])
 
-    def closure() -> torch.Tensor:
-        optimizer.zero_grad()
-        loss = model.loss(batch)["loss"]
-        loss.backward()
-        return loss
-
-    for _ in range(epochs):
-        optimizer.step(closure)
+    def record() -> None:
         times.append(time.perf_counter() - started)
         matrices.append(model.calibration_matrix())
+
+    optimizer = instantiate(OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml"))
+    refine_in_process(model, recording, optimizer, epochs, initialise=False, after_epoch=record)
     return matrices, times
 
 
@@ -65,13 +54,12 @@ def main() -> None:
         datamodule = ForceSensor3DataModule(magnitude=9.81, samples=samples, known_loads=3, mirror_hint=False, offset_scale=0.2)
         datamodule.setup()
         recording = datamodule.data.recordings["rotation"]
-        batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
         for refinement in ("alternation", "penalty"):
             model = ShapeFromMotion(refinement=refinement)
             started = time.perf_counter()
             model.initialise(recording)
             closed = time.perf_counter() - started
-            matrices, times = trajectory(model, batch, args.epochs)
+            matrices, times = trajectory(model, recording, args.epochs)
             answer = matrices[-1]
             reached = next((i for i, m in enumerate(matrices) if matrix_error(m, answer) < TOLERANCE), None)
             steps_to = f"{reached + 1}" if reached is not None else f"> {args.epochs}"

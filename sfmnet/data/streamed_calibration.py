@@ -157,7 +157,6 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         recording.hint_reading = torch.from_numpy(values[recording.channel_index])
 
 
-
 class MappedColumns:
     """Some columns of a ``.npy`` row file, sliced by rows through a memory map of just those rows (float64, times ``scale``).
 

@@ -50,7 +50,6 @@ def least_squares_shape(
     return solution[:n], offset
 
 
-
 def standardisation(readings: torch.Tensor, intercept: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """Centre (the channel means with an intercept, else zeros) and scale (RMS about the centre) of ``k x p`` readings.
 

@@ -173,15 +173,16 @@ class ShapeFromMotion(LinearCalibrator):
             noise = self.closed_form_noise(recording)
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":
-            low_snr = self.constrained and self.snr < MARGINAL_BELOW_SNR
-            affordable = not low_snr or len(recording.readings) * self.grid_size(self.direction_maps.shape[1]) <= MARGINAL_MAX_CELLS
-            if low_snr and not self.robust and not affordable:
+            marginal = self.constrained and self.snr < MARGINAL_BELOW_SNR and not self.robust
+            rows = len(recording.readings)
+            if marginal and rows * self.grid_size(self.direction_maps.shape[1]) > MARGINAL_MAX_CELLS:
+                marginal = False
                 self.notes.append(
-                    f"SNR {self.snr:.0f} is low enough for the marginal refinement, but on {len(recording.readings):,} rows "
-                    "it would take long: the alternation was used, whose bias grows as 1/SNR^2; set "
-                    "model.refinement=marginal to insist, or fit pose means"
+                    f"SNR {self.snr:.0f} is low enough for the marginal refinement, but on {rows:,} rows it would take "
+                    "long: the alternation was used, whose bias grows as 1/SNR^2; set model.refinement=marginal to "
+                    "insist, or fit pose means"
                 )
-            self.refinement = "marginal" if low_snr and not self.robust and affordable else "alternation"
+            self.refinement = "marginal" if marginal else "alternation"
         if self.refinement == "marginal":
             self.start_marginal(noise)
 
@@ -438,7 +439,6 @@ class ShapeFromMotion(LinearCalibrator):
             hint_motion = self.motion_of(recording.readings[unknown_rows[hint.sample]][None])
         rotation = frame_rotation(self.motion_of(recording.readings[known]), recording.loads[known], hint_motion, hint)
         self.shape.copy_(rotation.T @ self.shape)
-
 
 
 def huber_weights(residual_norms: torch.Tensor, threshold: float) -> torch.Tensor:

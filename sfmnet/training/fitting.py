@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import lightning as L
@@ -49,31 +50,38 @@ def refine_in_process(
     optimizer: OptimizerFactory,
     epochs: int = 10,
     initialise: bool = True,
+    after_epoch: Callable[[], None] | None = None,
 ) -> LinearCalibrator:
     """The refinement steps :class:`LearnerModule` runs, on the whole recording as one batch, without a Trainer.
 
     For benchmarks and tests that fit thousands of small sessions, where the Trainer's start-up
     would dominate: the closed form (``initialise``), then per epoch the model's own alternation,
-    or its ``prepare_step`` followed by one step of ``optimizer`` (built from the parameters).
+    or its ``prepare_step`` followed by one step of ``optimizer`` (built from the parameters);
+    ``after_epoch`` is called after each (e.g. to time the refinement).
     """
     if initialise:
         model.initialise(recording)
     batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
     if getattr(model, "alternating", False):
-        for _ in range(epochs):
+        def epoch() -> None:
             model.alternate(batch)
-        return model
-    step = optimizer([p for p in model.parameters() if p.requires_grad])
+    else:
+        step = optimizer([p for p in model.parameters() if p.requires_grad])
+        prepare = getattr(model, "prepare_step", None)
 
-    def closure() -> torch.Tensor:
-        step.zero_grad()
-        loss = model.loss(batch)["loss"]
-        loss.backward()
-        return loss
+        def closure() -> torch.Tensor:
+            step.zero_grad()
+            loss = model.loss(batch)["loss"]
+            loss.backward()
+            return loss
 
-    prepare = getattr(model, "prepare_step", None)
+        def epoch() -> None:
+            if prepare is not None:
+                prepare(batch)
+            step.step(closure)
+
     for _ in range(epochs):
-        if prepare is not None:
-            prepare(batch)
-        step.step(closure)
+        epoch()
+        if after_epoch is not None:
+            after_epoch()
     return model

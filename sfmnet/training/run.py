@@ -50,6 +50,7 @@ from sfmnet.training.cross_validation import (
     summarise_folds,
     write_folds,
 )
+from sfmnet.training.figure_output import publish_figure
 from sfmnet.training.fitting import fit
 from sfmnet.training.learner_module import matrix_error
 from sfmnet.training.progress import ProgressBar
@@ -273,11 +274,7 @@ def cross_validate(
     for name, summary in summarise_folds(folds).items():
         results[name].metrics.update({f"lopo/{key}": value for key, value in summary.items()})
     write_folds(folds, run_dir / "leave_one_group_out.csv")
-    figure = folds_figure(folds, data.load_unit)
-    save_figure_atomic(figure, run_dir / "figures" / "leave_one_group_out.png")
-    logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version="leave_one_group_out")
-    logger.experiment.add_figure("leave_one_group_out", figure, close=True)
-    logger.experiment.flush()
+    publish_figure(folds_figure(folds, data.load_unit), run_dir, "leave_one_group_out")
 
 
 # Each experiment's main error figure, the first of these every method has: held-out first, then Table 1's.

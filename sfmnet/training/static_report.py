@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
-
-from lightning.pytorch.loggers import TensorBoardLogger
-from matplotlib import pyplot as plt
 
 from sfmnet.data.recording import CalibrationData
 from sfmnet.eval.figures import static_intervals_figure
-from sfmnet.io import save_figure_atomic, write_bytes_atomic
+from sfmnet.io import write_csv_atomic
 from sfmnet.preprocessing.static_intervals import StaticIntervals
+from sfmnet.training.figure_output import publish_figure
 
 
 def report_static_intervals(data: CalibrationData, run_dir: Path) -> dict[str, float]:
@@ -27,13 +23,9 @@ def report_static_intervals(data: CalibrationData, run_dir: Path) -> dict[str, f
     line = describe(detection)
     print(line)
     if not detection.independent:
-        write_bytes_atomic(run_dir / "static_intervals.csv", intervals_csv(detection).encode())
-        figure = static_intervals_figure(detection, data.channels, line.replace("static intervals: ", "Static intervals: ", 1))
-        save_figure_atomic(figure, run_dir / "figures" / "static_intervals.png")
-        logger = TensorBoardLogger(save_dir=str(run_dir), name="tensorboard", version="static_intervals")
-        logger.experiment.add_figure("static_intervals", figure, close=False)
-        logger.experiment.flush()
-        plt.close(figure)
+        write_csv_atomic(run_dir / "static_intervals.csv", INTERVAL_COLUMNS, interval_rows(detection))
+        title = line.replace("static intervals: ", "Static intervals: ", 1)
+        publish_figure(static_intervals_figure(detection, data.channels, title), run_dir, "static_intervals")
     return {
         "static/intervals": float(detection.count),
         "static/rows_kept": float(detection.rows_kept),
@@ -60,12 +52,13 @@ def describe(detection: StaticIntervals) -> str:
     )
 
 
-def intervals_csv(detection: StaticIntervals) -> str:
+INTERVAL_COLUMNS = ["interval", "first_row", "last_row", "start_time", "end_time", "rows"]
+
+
+def interval_rows(detection: StaticIntervals) -> list[list]:
     """One row per interval: index, first and last row (0-based data rows), start and end time (s), rows."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["interval", "first_row", "last_row", "start_time", "end_time", "rows"])
+    rows = []
     for k, (first, stop) in enumerate(detection.intervals.tolist()):
         times = ["", ""] if detection.interval_times is None else [f"{t:.6g}" for t in detection.interval_times[k]]
-        writer.writerow([k, first, stop - 1, *times, stop - first])
-    return buffer.getvalue()
+        rows.append([k, first, stop - 1, *times, stop - first])
+    return rows
