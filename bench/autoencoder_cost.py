@@ -1,4 +1,4 @@
-"""What it costs a linear autoencoder to find the eigenspace learner's subspace (issue 4, NOTES 10).
+"""What it costs a linear autoencoder to find the eigenspace learner's subspace (issue 4, method §10).
 
 On the MK-V training vectors (conf/data/mkv.yaml) and the rank the eigenspace learner chose,
 trains the autoencoder through the trainer with each optimiser and reports the epochs and

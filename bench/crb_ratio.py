@@ -1,7 +1,7 @@
-"""Calibration error against the Cramer-Rao bound, closed form and refined, at falling SNR (issue 3, NOTES 5).
+"""Calibration error against the Cramer-Rao bound, closed form and refined, at falling SNR (issue 3, method §5).
 
 For each SNR (``F |s| / noise``, i.e. ``1 / data.noise_fraction``) and sensor (2-axis fingertip,
-3-axis force), ``--trials`` sessions with tared readings and no known loads, as in NOTES 5
+3-axis force), ``--trials`` sessions with tared readings and no known loads, as in method §5
 (or ``n`` exact known loads with ``--known-loads``).
 Error: the shape ``S`` (after the best orthogonal alignment to the truth when no load fixes the
 frame). Bound: the trace of the Cramer-Rao bound of ``S`` at the true loads and noise (the
@@ -149,7 +149,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--snr", type=float, nargs="+", default=[100, 20, 5, 2])
-    parser.add_argument("--known-loads", action="store_true", help="add n exact known loads (else none, as NOTES 5)")
+    parser.add_argument("--known-loads", action="store_true", help="add n exact known loads (else none, as in method §5)")
     parser.add_argument("--refinements", nargs="+", default=list(REFINEMENTS), choices=REFINEMENTS)
     parser.add_argument("--laws", action="store_true", help="the orientation-law table (see above)")
     parser.add_argument("--processes", type=int, default=1, help="trial processes for --laws (one thread each)")

@@ -1,4 +1,4 @@
-"""Shape-from-motion calibration streamed from disk against the same fit in memory (issue 5, NOTES 11). Run by hand:
+"""Shape-from-motion calibration streamed from disk against the same fit in memory (issue 5, method §11). Run by hand:
 
     python bench/streamed_calibration.py                 # 1e5, 1e6, 1e7 orientations
     python bench/streamed_calibration.py --rows 1e8      # a 3.6 GB float32 session (streamed only)

@@ -1,4 +1,4 @@
-"""The streamed PCA fit against the usual tools (issue 5, NOTES 11). Run by hand:
+"""The streamed PCA fit against the usual tools (issue 5, method §11). Run by hand:
 
     pip install -e ".[bench]"
     python bench/streaming_pca.py                      # samples 1e5, 1e6, 1e7 x channels 8, 64

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from sfmnet.errors import SfmnetError
@@ -49,10 +50,31 @@ class Calibration:
     offset_std: torch.Tensor | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
-    def apply(self, readings: torch.Tensor) -> torch.Tensor:
-        """Loads of a batch of readings: ``(Z - 1 o^T) C^T``, ``f x p`` in, ``f x n`` out."""
+    def apply(self, readings: Any) -> Any:
+        """Loads of a batch of readings: ``(Z - 1 o^T) C^T``, ``f x p`` in, ``f x n`` out (load units).
+
+        A torch tensor gives a tensor (in its dtype); anything else (numpy, lists) a float64 numpy array.
+        """
+        if not isinstance(readings, torch.Tensor):
+            values = np.asarray(readings, dtype=np.float64)
+            if values.ndim != 2 or values.shape[1] != len(self.channels):
+                raise SfmnetError(
+                    f"readings of shape {values.shape}: give (f, {len(self.channels)}) raw readings, "
+                    f"channels {', '.join(self.channels)}"
+                )
+            return self.apply(torch.from_numpy(values)).numpy()
         matrix = self.matrix.to(readings.dtype)
         return (readings - self.offset.to(readings.dtype)) @ matrix.T
+
+    @property
+    def warnings(self) -> list[str]:
+        """What the fit's checks found (empty when the model describes the data)."""
+        return list(self.extra.get("warnings", []))
+
+    @property
+    def error_bars_trustworthy(self) -> bool:
+        """False when a goodness-of-fit check failed: ``matrix_std`` then understates the error."""
+        return bool(self.extra.get("error_bars_trustworthy", True))
 
     def to_dict(self) -> dict[str, Any]:
         optional = {"matrix_std": self.matrix_std, "offset_std": self.offset_std}
@@ -67,11 +89,12 @@ class Calibration:
             **self.extra,
         }
 
-    def save(self, path: Path) -> None:
-        write_json_atomic(path, self.to_dict())
+    def save(self, path: str | Path) -> None:
+        """Write the calibration as JSON (the run's ``calibration.json`` format)."""
+        write_json_atomic(Path(path), self.to_dict())
 
     @classmethod
-    def load(cls, path: Path) -> Calibration:
+    def load(cls, path: str | Path) -> Calibration:
         """Read a calibration file, checking its shape; a bad file raises :class:`SfmnetError`."""
         try:
             text = Path(path).read_text()

@@ -2,7 +2,7 @@
 
 Hydra parses all of ``sys.argv``, so the command word is taken off first. ``train`` is the
 default command because Lightning's DDP launcher restarts worker processes as
-``python -m sfmnet <overrides>`` without it (NOTES 12).
+``python -m sfmnet <overrides>`` without it (method §12).
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ def test_default_train_end_to_end(tmp_path: Path):
 
 
 def test_command_word_is_optional(tmp_path: Path):
-    """Lightning's DDP launcher restarts workers without the command word (NOTES 12)."""
+    """Lightning's DDP launcher restarts workers without the command word (method §12)."""
     result = sfmnet(f"hydra.run.dir={tmp_path / 'run'}", "trainer.fast_dev_run=true", *QUIET)
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "run" / "calibration.json").is_file()
@@ -112,7 +112,7 @@ def test_unknown_command():
 
 
 def test_installed_wheel_finds_its_configs(tmp_path: Path):
-    """Outside the checkout, the configs come from inside the installed package (NOTES 12)."""
+    """Outside the checkout, the configs come from inside the installed package (method §12)."""
     build = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(tmp_path / "dist"), str(REPO)],
         capture_output=True, text=True, timeout=300,

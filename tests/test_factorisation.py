@@ -1,4 +1,4 @@
-"""The closed form of paper section 4 (NOTES 2-4) on noise-free and degenerate data."""
+"""The closed form of paper section 4 (method §2-4) on noise-free and degenerate data."""
 
 from __future__ import annotations
 

@@ -22,9 +22,8 @@ from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import LearnerModule
 from sfmnet.training.run import train
-from tests.conftest import compose_config
+from tests.conftest import compose_config, real_data
 
-IMU = Path(os.environ.get("SFMNET_DATA_DIR", Path(__file__).resolve().parents[2] / "shared" / "data")) / "imu_xsens"
 
 
 def triad_session(seed: int, rows: int = 300, snr: float = 100.0, known: int = 3) -> tuple[CalibrationRecording, torch.Tensor, torch.Tensor]:
@@ -209,11 +208,8 @@ def test_no_known_loads_calibrates_up_to_a_rotation(stream: Path, tmp_path: Path
 
 def test_imu_accelerometer_matches_the_triad_baseline(tmp_path: Path):
     """The real hand-held accelerometer stream: static intervals, p = n = 3, no known loads, held-out intervals."""
-    if not IMU.exists():
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"{IMU} is missing: CI runs with ../shared beside the checkout")
-        pytest.skip(f"real data not found at {IMU} (set SFMNET_DATA_DIR)")
-    cfg = compose_config(["experiment=imu_accelerometer", f"data.path={IMU / 'xsens_acc.txt'}"])
+    real_data("imu_xsens")
+    cfg = compose_config(["experiment=imu_accelerometer"])
     metrics = train(cfg, tmp_path / "imu")
     assert metrics["static/intervals"] >= 30
     ours, baseline = metrics["test/magnitude_rms"], metrics["bias_scale_misalignment/test/magnitude_rms"]
@@ -222,7 +218,7 @@ def test_imu_accelerometer_matches_the_triad_baseline(tmp_path: Path):
     assert calibration["load_unit"] == "m/s^2" and all(s > 0 for row in calibration["matrix_std"] for s in row)
     # The whole stream, hand motion included, as every row was taken before: flagged, not silently wrong.
     cfg = compose_config(
-        ["experiment=imu_accelerometer", f"data.path={IMU / 'xsens_acc.txt'}", "data.static_intervals=false",
+        ["experiment=imu_accelerometer", "data.static_intervals=false",
          "data.held_out_intervals=false", "~baselines.bias_scale_misalignment"]
     )
     metrics = train(cfg, tmp_path / "whole")

@@ -14,7 +14,8 @@ from sfmnet.linalg.least_squares import regress_loads, regression_offset, regres
 from sfmnet.models.regression import LoadRegression
 from sfmnet.training.cross_validation import held_out_groups, leave_one_group_out
 from sfmnet.training.fitting import fit
-from sfmnet.training.run import MethodResult, against_best_baseline
+from sfmnet.tasks.base import MethodResult
+from sfmnet.tasks.calibration import against_best_baseline
 from tests.conftest import compose_config
 
 DTYPE = torch.float64
@@ -159,7 +160,7 @@ def test_every_least_squares_experiment_has_both_forms():
 
 def test_headline_names_the_better_least_squares_form():
     def result(name: str, error: float) -> MethodResult:
-        return MethodResult(name, calibration=None, metrics={"lopo/force_rms": error, "eval/max_error_pct": 0.1}, warnings=[])
+        return MethodResult(name, metrics={"lopo/force_rms": error, "eval/max_error_pct": 0.1})
 
     results = {"shape_from_motion": result("shape_from_motion", 5.2), "least_squares": result("least_squares", 4.8)}
     results["regression"] = result("regression", 3.2)

@@ -1,4 +1,4 @@
-"""Primordial learning (paper section 6, NOTES 8-10): the MK-V simulator, the eigenspace learner, the autoencoder."""
+"""Primordial learning (paper section 6, method §8-10): the MK-V simulator, the eigenspace learner, the autoencoder."""
 
 from __future__ import annotations
 
@@ -27,9 +27,8 @@ from sfmnet.linalg.subspace import (
     principal_angles_deg,
 )
 from sfmnet.training.run import train
-from tests.conftest import compose_config
+from tests.conftest import compose_config, real_data
 
-WALL_FOLLOWING = Path(__file__).resolve().parents[2] / "shared" / "data" / "wall_following" / "sensor_readings_24.csv"
 
 
 def test_mkv_runs_are_fixed_by_the_seed_and_test_rooms_differ():
@@ -119,6 +118,7 @@ def test_autoencoder_finds_the_principal_subspace(run_dir: Path):
 
 def test_wall_following_held_out_accuracy(run_dir: Path):
     """The real log: rank by parallel analysis, last 30 % held out (majority 0.41, least squares 0.64; measured 0.619)."""
+    real_data("wall_following/sensor_readings_24.csv")
     metrics = train(compose_config(["experiment=wall_following"]), run_dir)
     assert metrics["OUTPUT_accuracy"] >= 0.60
 
@@ -164,5 +164,6 @@ def test_bad_sensorimotor_logs(tmp_path: Path, rows: int, constant: bool, overri
         csv_module(tmp_path / "log.csv", **overrides).setup()
 
 
-def test_wall_following_file_is_where_the_tests_expect():
-    assert WALL_FOLLOWING.is_file(), "tests read the real log from ../shared/data (see README)"
+def test_wall_following_config_finds_the_real_log():
+    path = Path(compose_config(["experiment=wall_following"]).data.path)
+    assert path == real_data("wall_following/sensor_readings_24.csv")

@@ -1,4 +1,4 @@
-"""Six-axis force/torque calibration from masses in unknown orientations (NOTES 6), simulated, from CSV, and real."""
+"""Six-axis force/torque calibration from masses in unknown orientations (method §6), simulated, from CSV, and real."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from sfmnet.models.least_squares import LeastSquaresCalibration
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import matrix_error
 from sfmnet.training.run import train
-from tests.conftest import REPO, compose_config
+from tests.conftest import REPO, compose_config, real_data
 from tests.test_uncertainty import refined
 
 CONFIGURATIONS = OmegaConf.to_container(OmegaConf.load(REPO / "conf" / "data" / "ft6dof.yaml"))["configurations"]
@@ -116,12 +116,13 @@ def test_six_axis_csv_names_a_configuration_without_mass(tmp_path: Path):
 
 
 def test_real_sensor_three_known_poses_beside_least_squares(run_dir: Path):
-    """The real recordings (../shared/data/ft_printed_sensor), configuration 0, leave one pose out.
+    """The real recordings (paths.data_dir/ft_printed_sensor), configuration 0, leave one pose out.
 
     Measured: shape from motion 0.54 N RMS with three known poses, least squares 0.26 N with
     every pose known, the loads regressed on the readings 0.95 N (README). The bounds catch a
     regression, not a tuned pass.
     """
+    real_data("ft_printed_sensor")
     metrics = train(compose_config(["experiment=ft_printed_sensor"]), run_dir)
     assert metrics["lopo/force_rms"] < 0.8
     assert metrics["least_squares/lopo/force_rms"] < 0.35

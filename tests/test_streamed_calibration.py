@@ -1,4 +1,4 @@
-"""Calibration from streamed sums (NOTES 11): the in-memory answers, from blocks, on one or two processes."""
+"""Calibration from streamed sums (method §11): the in-memory answers, from blocks, on one or two processes."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Streamed fits from sufficient statistics (NOTES 11): one pass, memory maps, several processes."""
+"""Streamed fits from sufficient statistics (method §11): one pass, memory maps, several processes."""
 
 from __future__ import annotations
 

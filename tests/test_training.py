@@ -102,7 +102,7 @@ def test_table1_reproduces_paper_ordering(run_dir: Path):
 
 
 def test_least_squares_beats_shape_from_motion_with_perfect_loads(run_dir: Path):
-    """The other side of the crossover (NOTES 7): with only the stage's 0.2 degree error, least squares wins precision."""
+    """The other side of the crossover (method §7): with only the stage's 0.2 degree error, least squares wins precision."""
     cfg = compose_config(
         ["experiment=table1", "data.errors.string_misalignment_deg=0", "data.errors.friction=0",
          "data.errors.out_of_plane_deg=0", "data.errors.mass_error=0"]

@@ -1,4 +1,4 @@
-"""Error bars (Cramer-Rao, NOTES 5) that a user can trust: about 68 % of entries within one standard error."""
+"""Error bars (Cramer-Rao, method §5) that a user can trust: about 68 % of entries within one standard error."""
 
 from __future__ import annotations
 

@@ -20,7 +20,11 @@ class CalibrationDataModule(L.LightningDataModule, ABC):
     Args:
         batch_size: rows per batch; ``None`` serves each recording whole (the right choice for
             calibration-sized data, where a full-batch optimiser such as L-BFGS converges fastest).
+
+    ``task``: the kind of run its data is for (:mod:`sfmnet.tasks`), when ``task=`` is not set.
     """
+
+    task = "calibration"
 
     def __init__(self, batch_size: int | None = None) -> None:
         super().__init__()

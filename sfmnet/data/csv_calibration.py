@@ -21,11 +21,11 @@ class CsvCalibrationDataModule(CalibrationDataModule):
 
     One row per sample. The load columns are filled only on rows whose load is known (the
     few reference loads) and empty elsewhere; every row is taken with the same load
-    magnitude, the calibration mass. For a six-axis sensor (NOTES 6) a configuration column
+    magnitude, the calibration mass. For a six-axis sensor (method §6) a configuration column
     says which mass configuration each row holds, each with its mass and centre of mass.
 
     Args:
-        path: the file.
+        path: the file (for messages only when ``table`` is given).
         load_columns: the ``n`` load columns, e.g. ``[fx, fy, fz]``; their names become the axes.
             Empty (no known loads): give ``axes``; the frame is then arbitrary (correct up to an
             orthogonal transform, which leaves every load's magnitude right).
@@ -53,6 +53,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             ``test``, scored by how far each held-out interval's mean load is from ``magnitude``.
         time_unit: ``time_column``'s unit: ``s``, ``ms``, ``us`` or ``ns``.
         static: the detector's settings (``window``, ``min_duration``, ``threshold``, ``noise_quantile``).
+        table: the columns already in memory (:func:`sfmnet.calibrate`); else ``path`` is read.
     """
 
     def __init__(
@@ -77,6 +78,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         time_unit: str = "s",
         static: dict | None = None,
         held_out_intervals: bool = False,
+        table: Table | None = None,
     ) -> None:
         super().__init__(batch_size=batch_size)
         self.path = Path(path)
@@ -96,9 +98,10 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         self.gravity = gravity
         self.held_out_intervals = held_out_intervals
         self.static = static_settings(static_intervals, time_column, time_unit, static)
+        self.table = table
 
     def build(self) -> CalibrationData:
-        table = read_table(self.path, self.columns)
+        table = self.table if self.table is not None else read_table(self.path, self.columns)
         table.require(self.load_columns, "load")
         excluded = {*self.load_columns, *(c for c in (self.time_column, self.configuration_column, self.group_column) if c)}
         # Numeric columns with a few bad cells stay in, so their cells are reported, not skipped.
@@ -193,7 +196,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             )
 
     def parse_configurations(self, table: Table) -> tuple[torch.Tensor, torch.Tensor]:
-        """Each row's configuration index (``f``) and the ``C x 3 x 6`` wrench maps (NOTES 6)."""
+        """Each row's configuration index (``f``) and the ``C x 3 x 6`` wrench maps (method §6)."""
         if len(self.load_columns) != 6:
             raise SfmnetError(
                 f"data.configuration_column is for six-axis sensors: give six load_columns (force, then torque), "

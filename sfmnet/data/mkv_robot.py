@@ -1,4 +1,4 @@
-"""A simulated MK-V: a three-wheeled non-holonomic robot teleoperated through a cluttered room (NOTES 9).
+"""A simulated MK-V: a three-wheeled non-holonomic robot teleoperated through a cluttered room (method §9).
 
 One drive wheel and one steered wheel turned by a steering motor (tricycle kinematics:
 heading rate ``v tan(delta) / L``), three-valued drive and steer commands with no closed-loop

@@ -18,7 +18,7 @@ class CalibrationRecording:
     ``u D_c`` with ``u`` an unknown unit direction (``d``) and ``D_c`` (``d x n``) the
     direction map of its mass configuration ``c``. For force sensors ``D = F I`` (one
     configuration, the constant magnitude ``F``); for a six-axis sensor ``D_c = m_c g [I, [r_c]x^T]``
-    turns the gravity direction into the wrench of mass ``m_c`` at centre of mass ``r_c`` (NOTES 6).
+    turns the gravity direction into the wrench of mass ``m_c`` at centre of mass ``r_c`` (method §6).
 
     Attributes:
         readings: ``f x p`` raw units.
@@ -83,7 +83,7 @@ class CalibrationRecording:
 
 @dataclass(frozen=True)
 class EvaluationSweep:
-    """A test mass turned through a full rotation (paper section 5, NOTES 7).
+    """A test mass turned through a full rotation (paper section 5, method §7).
 
     Attributes:
         magnitude: the true load magnitude (load units).

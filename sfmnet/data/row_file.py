@@ -1,4 +1,4 @@
-"""Rows of numbers too many to hold in memory: a ``.npy`` read through a memory map, block by block (NOTES 11).
+"""Rows of numbers too many to hold in memory: a ``.npy`` read through a memory map, block by block (method §11).
 
 A CSV is converted once to ``.npy`` beside a cache key of its size and modification time, so
 later runs stream it like any ``.npy``. Blocks are shared out between processes by the data
@@ -178,6 +178,8 @@ class RowFileDataModule(L.LightningDataModule):
         block_rows: rows per block (default: about 32 MB of float64 per block).
         cache_dir: where CSV conversions live (default: ``.sfmnet-cache`` beside the CSV).
     """
+
+    task = "pca"
 
     def __init__(
         self,

@@ -2,7 +2,7 @@
 
 Commands are categorical (the MK-V's -1/0/+1, or labels such as ``Move-Forward``): each is
 one-hot encoded into its own block of columns and decoded back by the largest entry of its
-block (NOTES 8).
+block (method §8).
 """
 
 from __future__ import annotations
@@ -89,6 +89,7 @@ class SensorimotorDataModule(L.LightningDataModule, ABC):
     """
 
     recording = "sensorimotor"
+    task = "sensorimotor"
 
     def __init__(self, batch_size: int | None = None) -> None:
         super().__init__()

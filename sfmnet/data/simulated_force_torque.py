@@ -1,4 +1,4 @@
-"""A simulated six-axis force/torque sensor calibrated with masses in unknown orientations (NOTES 6)."""
+"""A simulated six-axis force/torque sensor calibrated with masses in unknown orientations (method §6)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Simulated linear sensors and the ways loads are applied to them (paper sections 4-5, NOTES 7).
+"""Simulated linear sensors and the ways loads are applied to them (paper sections 4-5, method §7).
 
 Every draw uses a ``torch.Generator`` so a seed fixes the sensor and all its recordings.
 """

@@ -70,6 +70,8 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             detected in chunks through the memory map (memory: a byte per row for the mask).
     """
 
+    task = "calibration"
+
     def __init__(
         self,
         path: str,

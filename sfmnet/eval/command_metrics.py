@@ -1,4 +1,4 @@
-"""How well learnt commands agree with the teleoperator's (NOTES 8): agreement, kappa, when and which way."""
+"""How well learnt commands agree with the teleoperator's (method §8): agreement, kappa, when and which way."""
 
 from __future__ import annotations
 

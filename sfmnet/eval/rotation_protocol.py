@@ -1,4 +1,4 @@
-"""The paper's evaluation (section 5, NOTES 7): turn each test mass once round, read |force|.
+"""The paper's evaluation (section 5, method §7): turn each test mass once round, read |force|.
 
 Accuracy: the mean magnitude and its error against the true load. Precision: the standard
 deviation of the magnitude after a moving average removes the electrical noise, i.e. how

@@ -1,4 +1,4 @@
-"""Anderson acceleration of a fixed-point iteration ``x <- G(x)`` (the alternation of NOTES 5)."""
+"""Anderson acceleration of a fixed-point iteration ``x <- G(x)`` (the alternation of method §5)."""
 
 from __future__ import annotations
 

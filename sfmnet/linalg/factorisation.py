@@ -1,4 +1,4 @@
-"""Closed-form shape from motion (paper section 4, eqs. 5-11; NOTES sections 2 and 4).
+"""Closed-form shape from motion (paper section 4, eqs. 5-11; method §2 and §4).
 
 Conventions used across sfmnet (row vectors, as in the paper):
 
@@ -44,7 +44,7 @@ def truncated_svd_factors(readings: torch.Tensor, rank: int, centre: bool = Fals
     Args:
         readings: ``Z``, ``f x p``.
         rank: ``n``, the number of load dimensions.
-        centre: remove the column mean first (for offsets, NOTES 4, and for PCA).
+        centre: remove the column mean first (for offsets, method §4, and for PCA).
 
     Returns:
         The affine factors ``M^`` (``f x n``) and ``S^`` (``n x p``) with ``M^ S^ = Z*``.
@@ -135,7 +135,7 @@ def metric_gram(motion: torch.Tensor, magnitude: float) -> torch.Tensor:
 
 
 def positive_definite_or_raise(q: torch.Tensor) -> torch.Tensor:
-    """Return ``q`` if it is positive definite, else raise the error NOTES 2 step 4 asks for."""
+    """Return ``q`` if it is positive definite, else raise the error method §2 step 4 asks for."""
     eigenvalues = torch.linalg.eigvalsh(q)
     if eigenvalues[0] <= RANK_TOLERANCE * eigenvalues[-1].abs():
         raise SfmnetError(
@@ -161,7 +161,7 @@ def metric_shape(affine_shape: torch.Tensor, gram: torch.Tensor) -> torch.Tensor
 
 @dataclass(frozen=True)
 class EllipsoidFit:
-    """Centre and metric of the motion when the readings carry unknown offsets (NOTES 4).
+    """Centre and metric of the motion when the readings carry unknown offsets (method §4).
 
     Attributes:
         centre: ``c``, ``n``, in the coordinates of the affine motion.
@@ -209,7 +209,7 @@ def metric_design(points: torch.Tensor, centre_free: bool) -> torch.Tensor:
 
 def ellipsoid_from_coefficients(coefficients: torch.Tensor, n: int, magnitude: float) -> EllipsoidFit:
     """The ellipsoid ``y A y^T + b y^T = 1`` (``b`` absent: centred) as centre ``c = -A^-1 b / 2`` and
-    metric ``Q = F^2 A / (1 + c A c^T)`` (eq. 11 with NOTES 4's offsets).
+    metric ``Q = F^2 A / (1 + c A c^T)`` (eq. 11 with method §4's offsets).
 
     Args:
         coefficients: ``vech(A)`` (``n(n+1)/2``), then ``b`` (``n``) when the centre is free.

@@ -1,4 +1,4 @@
-"""The load frame from known loads: orthogonal Procrustes with the mirror made explicit (NOTES 3)."""
+"""The load frame from known loads: orthogonal Procrustes with the mirror made explicit (method §3)."""
 
 from __future__ import annotations
 

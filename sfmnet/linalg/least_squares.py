@@ -1,4 +1,4 @@
-"""Least-squares calibration, the traditional baselines: every load known (NOTES 7).
+"""Least-squares calibration, the traditional baselines: every load known (method §7).
 
 Two forms. The paper's fits the shape from the loads, ``S, o = lstsq([M 1], Z)`` (eq. 5 with
 ``M`` known), and calibrates with ``C = pinv(S)^T``; practitioners regress the loads on the

@@ -1,4 +1,4 @@
-"""Sufficient statistics of a stream of rows: count, sums and cross products about a fixed shift (NOTES 11).
+"""Sufficient statistics of a stream of rows: count, sums and cross products about a fixed shift (method §11).
 
 The closed forms need only these for ``f >> p``: one pass over the data, memory independent
 of ``f``, and statistics of several shards (processes, files) add up exactly.

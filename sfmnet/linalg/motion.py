@@ -1,4 +1,4 @@
-"""The motion of each sample given the shape: the inner problem of variable projection (NOTES 5)."""
+"""The motion of each sample given the shape: the inner problem of variable projection (method §5)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Subspaces of sensorimotor vectors: choosing the rank, gappy projection, principal angles (NOTES 8, 10)."""
+"""Subspaces of sensorimotor vectors: choosing the rank, gappy projection, principal angles (method §8, §10)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from sfmnet.linalg.factorisation import RANK_TOLERANCE
 
 
 def largest_ratio_rank(singular_values: torch.Tensor) -> int:
-    """The paper's rule: ``argmax_k s_k / s_(k+1)``, numerically null values ignored (NOTES 8).
+    """The paper's rule: ``argmax_k s_k / s_(k+1)``, numerically null values ignored (method §8).
 
     Args:
         singular_values: ``m``, descending.
@@ -48,7 +48,7 @@ def parallel_analysis_rank(
 
 
 def masked_projection(basis: torch.Tensor, values: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
-    """Coefficients from the observed columns alone: ``c = argmin |c B_o - x_o|`` (gappy PCA, NOTES 8).
+    """Coefficients from the observed columns alone: ``c = argmin |c B_o - x_o|`` (gappy PCA, method §8).
 
     An explicit mask, never zeros for missing: an "off" command or an idle bumper is a real zero.
 

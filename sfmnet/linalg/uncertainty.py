@@ -1,16 +1,16 @@
-"""Error bars of a calibration: the Cramer-Rao bound from the model's Fisher information (NOTES 5).
+"""Error bars of a calibration: the Cramer-Rao bound from the model's Fisher information (method §5).
 
 Model, with white reading noise of variance ``sigma^2``::
 
     z_j = m_j S + o + e_j,    m_j known (known-load rows) or m_j = u_j D_j, |u_j| = 1 (unknown rows)
 
 with ``D_j = F I`` for one constant-magnitude mass and the configuration's direction map
-for six axes (NOTES 6). Parameters: the shape ``S`` (``n x p``), the offsets ``o`` (``p``,
+for six axes (method §6). Parameters: the shape ``S`` (``n x p``), the offsets ``o`` (``p``,
 when estimated) and, for each unknown row, its direction ``u_j`` on the circle or sphere
 (``d - 1`` tangent coordinates).
 The per-row directions are eliminated by a Schur complement, leaving the information of
 ``(S, o)``. Without known loads the frame's rotation is not identifiable: the
-pseudo-inverse then removes that gauge, as in the planning measurements of NOTES 5.
+pseudo-inverse then removes that gauge, as in the planning measurements of method §5.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Wrenches of a mass hanging from a six-axis force/torque sensor (NOTES 6)."""
+"""Wrenches of a mass hanging from a six-axis force/torque sensor (method §6)."""
 
 from __future__ import annotations
 

@@ -28,7 +28,7 @@ class BiasScaleMisalignment(LinearCalibrator):
 
     Kept as the shape ``S = C^-T``, lower triangular, so that it is a :class:`LinearCalibrator`
     like every other model (``C = pinv(S)^T``). Started from the closed-form ellipsoid fit
-    (NOTES 4: the same family), turned into the triangular frame by a QR decomposition, then
+    (method §4: the same family), turned into the triangular frame by a QR decomposition, then
     refined by the trainer's optimiser. Needs as many channels as axes and one load magnitude.
     """
 

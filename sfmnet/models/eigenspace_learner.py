@@ -6,6 +6,7 @@ import torch
 
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.linalg.subspace import masked_projection
+from sfmnet.models.contracts import FitMode
 from sfmnet.models.sensorimotor_learner import SensorimotorLearner
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 
@@ -24,9 +25,8 @@ class EigenspaceLearner(SensorimotorLearner):
         super().__init__(rank=rank, rank_rule=rank_rule, seed=seed)
         self.factorisation: ShapeFromMotion | None = None
 
-    @property
-    def alternating(self) -> bool:
-        return True
+    def fit_mode(self) -> FitMode:
+        return FitMode.ALTERNATION
 
     def start(self, standardised: torch.Tensor) -> None:
         # One alternation round per epoch: the closed form is already its fixed point.

@@ -1,4 +1,4 @@
-"""Least-squares calibration: the traditional baseline, every load known (paper section 5, NOTES 7)."""
+"""Least-squares calibration: the traditional baseline, every load known (paper section 5, method §7)."""
 
 from __future__ import annotations
 

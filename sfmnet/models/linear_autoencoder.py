@@ -1,4 +1,4 @@
-"""A linear autoencoder on the same vectors, for comparison with the eigenspace learner (NOTES 10)."""
+"""A linear autoencoder on the same vectors, for comparison with the eigenspace learner (method §10)."""
 
 from __future__ import annotations
 

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import Any
 
 import torch
 from torch import nn
 
-from sfmnet.calibration import calibration_matrix
+from sfmnet.calibration import Calibration, calibration_matrix
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
+from sfmnet.models.contracts import FitMode
 
 Batch = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 
@@ -31,9 +33,9 @@ class LinearCalibrator(nn.Module, ABC):
         frame_fixed: False while the load frame is arbitrary (no known loads).
         coverage: see :func:`sfmnet.linalg.factorisation.motion_coverage`; NaN where it does not apply.
 
-    Models fitted by the trainer's steps also define ``loss(batch) -> dict`` of loss terms for a
-    batch ``(index, readings, loads)`` (:data:`Batch`), key ``"loss"`` minimised; models fitted from
-    streamed sums (``streaming = True``) define ``begin_pass``/``accumulate``/``reduce``/``finalise`` instead.
+    Each is a :class:`sfmnet.models.contracts.Learner`: fitted by the trainer's steps on
+    ``loss(batch)`` (``FitMode.STEPS``, the default here; a batch is ``(index, readings, loads)``,
+    :data:`Batch`), by its own ``alternate`` rounds, or from streamed sums (``FitMode.PASSES``).
     """
 
     name: str
@@ -64,6 +66,40 @@ class LinearCalibrator(nn.Module, ABC):
     def fit_warnings(self) -> list[str]:
         """What the fit itself has to say (e.g. not converged), beside the diagnostics' warnings."""
         return []
+
+    def fit_mode(self) -> FitMode:
+        return FitMode.STEPS
+
+    def prepare_step(self, batch: Batch) -> None:
+        """Nothing to do before a step (the marginal refinement overrides this)."""
+
+    def monitor(self) -> dict[str, float]:
+        return {}
+
+    def to_calibration(
+        self,
+        channels: list[str],
+        axes: list[str],
+        recording: CalibrationRecording | None = None,
+        uncertainty: CalibrationUncertainty | None = None,
+        extra: dict[str, Any] | None = None,
+    ) -> Calibration:
+        """The fitted calibration: matrix, offsets and spectrum, with the residual on ``recording`` and the
+        error bars of ``uncertainty`` where given; ``extra`` goes into the file beside the method and frame."""
+        return Calibration(
+            matrix=self.calibration_matrix().detach(),
+            offset=self.physical_offset().detach(),
+            channels=list(channels),
+            axes=list(axes),
+            singular_values=[] if self.singular_values is None else self.singular_values.tolist(),
+            residual_rms=float("nan") if recording is None else self.residual_rms(recording),
+            matrix_std=None if uncertainty is None else uncertainty.matrix_std,
+            offset_std=None if uncertainty is None else uncertainty.offset_std,
+            extra={"method": self.name, "frame": self.frame_description(), **(extra or {})},
+        )
+
+    def frame_description(self) -> str:
+        return "known_loads" if self.frame_fixed else "arbitrary (no known loads: correct up to an orthogonal transform)"
 
     def report_recording(self, recording: CalibrationRecording) -> CalibrationRecording:
         """The rows the results (error bars, residuals, figures) are computed on: the training recording."""

@@ -1,4 +1,4 @@
-"""Loss terms of the factorisation (NOTES 5), in the models' dimensionless units.
+"""Loss terms of the factorisation (method §5), in the models' dimensionless units.
 
 Readings are divided by their RMS norm and loads by the load magnitude ``F``, so a relative
 load error ``d`` costs about ``d^2`` in each term and one weight means the same for any sensor.
@@ -33,7 +33,7 @@ def reconstruction_loss(
 def metric_constraint_loss(motion: torch.Tensor, constrained: torch.Tensor) -> torch.Tensor:
     """The metric constraint ``|m_j| = 1`` (loads in units of ``F``) as a loss: ``sum_j ((|m_j|^2 - 1) / 2)^2 / b``.
 
-    Paper eq. 11 generalised (NOTES 5); near the constraint each term is ``(|m_j| - 1)^2``.
+    Paper eq. 11 generalised (method §5); near the constraint each term is ``(|m_j| - 1)^2``.
 
     Args:
         motion: ``b x n``.

@@ -1,4 +1,4 @@
-"""What the primordial learners share (paper section 6, NOTES 8): standardised [sensors; commands] vectors,
+"""What the primordial learners share (paper section 6, method §8): standardised [sensors; commands] vectors,
 a rank-k subspace, and commands read back from the sensors alone."""
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from torch import nn
 
 from sfmnet.data.sensorimotor import SensorimotorData
 from sfmnet.errors import SfmnetError
+from sfmnet.models.contracts import FitMode
 from sfmnet.linalg.subspace import (
     largest_ratio_rank,
     masked_projection,
@@ -40,7 +41,7 @@ class CommandReading:
 class SensorimotorLearner(nn.Module, ABC):
     """A linear subspace of standardised ``x = [sensors; one-hot commands]`` learnt from teleoperated data.
 
-    Run time (NOTES 8): the sensor part alone is projected on the subspace by least squares on
+    Run time (method §8): the sensor part alone is projected on the subspace by least squares on
     the observed columns (an explicit mask), the full vector reconstructed, and each
     command's one-hot block decoded by its largest entry.
 
@@ -53,7 +54,6 @@ class SensorimotorLearner(nn.Module, ABC):
 
     name: str
     recording = "sensorimotor"
-    alternating = False
 
     def __init__(self, rank: int | None = None, rank_rule: str = "parallel_analysis", seed: int = 0) -> None:
         super().__init__()
@@ -95,6 +95,15 @@ class SensorimotorLearner(nn.Module, ABC):
                 f"model.rank is {self.rank} but the vectors have {vectors.shape[1]} columns: choose 1 to {vectors.shape[1] - 1}"
             )
         self.start(standardised)
+
+    def fit_mode(self) -> FitMode:
+        return FitMode.STEPS
+
+    def prepare_step(self, batch: tuple[torch.Tensor, torch.Tensor]) -> None:
+        """Nothing to do before a step."""
+
+    def monitor(self) -> dict[str, float]:
+        return {}
 
     def standardise(self, vectors: torch.Tensor) -> torch.Tensor:
         return (vectors - self.column_mean) / self.column_scale

@@ -27,6 +27,7 @@ from sfmnet.models.linear_calibrator import (
     dense_parameter,
     rms_norm,
 )
+from sfmnet.models.contracts import FitMode
 from sfmnet.models.losses import metric_constraint_loss, reconstruction_loss
 
 REFINEMENTS = ("auto", "alternation", "penalty", "marginal")
@@ -51,7 +52,7 @@ PRIOR_SMOOTHING = 3.0
 class ShapeFromMotion(LinearCalibrator):
     """Rank-n factorisation of raw readings into motion ``M`` and shape ``S``, the metric constraint a loss term.
 
-    Loss (NOTES 5), readings in units of their RMS norm and loads in units of ``F``::
+    Loss (method §5), readings in units of their RMS norm and loads in units of ``F``::
 
         L = (1/f) [ sum_j |z_j - u_j D_c S - o|^2                        unknown-load rows
                     + metric_weight * sum_j ((|u_j|^2 - 1) / 2)^2     unknown-load rows
@@ -59,7 +60,7 @@ class ShapeFromMotion(LinearCalibrator):
 
     An unknown row's load is ``m_j = u_j D_c``: its unit direction ``u_j`` through the direction
     map of its mass configuration (:class:`CalibrationRecording`; ``D = F I`` for a force
-    sensor, so ``m_j = F u_j``; the gravity direction to the wrench for six axes, NOTES 6).
+    sensor, so ``m_j = F u_j``; the gravity direction to the wrench for six axes, method §6).
     Each ``u_j`` is the minimiser of its own terms given ``S`` and ``o`` (:func:`constrained_motion`,
     variable projection), so the trainer's optimiser works on ``S`` and ``o`` alone: a small,
     well-conditioned problem. Known loads are used as their rows' motion, their
@@ -67,13 +68,13 @@ class ShapeFromMotion(LinearCalibrator):
     ``metric_weight = 0`` is the unconstrained affine factorisation (truncated SVD, or PCA
     when centred); large weights approach the hard constraint of maximum likelihood.
 
-    The first step of fitting is the closed form (paper eqs. 7-11, NOTES 2-4) for one mass;
+    The first step of fitting is the closed form (paper eqs. 7-11, method §2-4) for one mass;
     with several mass configurations (six axes) it is least squares on the known loads,
     which the unknown orientations then refine.
 
     Refinement, in the trainer's steps:
 
-    - ``"alternation"``: NOTES 5's alternation, ``u_j <- normalize(z_j pinv(D S))``
+    - ``"alternation"``: method §5's alternation, ``u_j <- normalize(z_j pinv(D S))``
       then ``[S; o] <- lstsq([M 1], Z)`` (:meth:`alternate`), the motion always exactly on
       the constraint. At low SNR it stays far closer to the Cramer-Rao bound than the exact
       penalised minimum, whose per-sample directions are incidental parameters that bias
@@ -89,7 +90,7 @@ class ShapeFromMotion(LinearCalibrator):
     Args:
         rank: ``n``, the number of load axes (2, 3, 6, ...); None takes it from the data.
         metric_weight: weight of the metric-constraint loss (0: unconstrained).
-        estimate_offset: learn channel offsets (ellipsoid closed form, NOTES 4); else tared readings.
+        estimate_offset: learn channel offsets (ellipsoid closed form, method §4); else tared readings.
         refinement: ``"auto"``, ``"alternation"``, ``"penalty"`` or ``"marginal"`` (see above).
         marginal_grid: directions in the marginal's grid (default 512 on a circle, 2000 on a sphere).
         alternation_steps: alternation rounds per training step (full batches only).
@@ -148,10 +149,9 @@ class ShapeFromMotion(LinearCalibrator):
     def constrained(self) -> bool:
         return self.metric_weight > 0
 
-    @property
-    def alternating(self) -> bool:
-        """Refined by :meth:`alternate` in the trainer's steps rather than by the optimiser."""
-        return self.refinement in ("alternation", "auto")
+    def fit_mode(self) -> FitMode:
+        """The alternation (and ``auto`` until the data choose) refines by :meth:`alternate`; the rest by the optimiser."""
+        return FitMode.ALTERNATION if self.refinement in ("alternation", "auto") else FitMode.STEPS
 
     def initialise(self, recording: CalibrationRecording) -> None:
         self.rank = self.rank or recording.rank
@@ -302,7 +302,7 @@ class ShapeFromMotion(LinearCalibrator):
         self.set_direction_maps(recording)
 
     def start_from_known_loads(self, recording: CalibrationRecording) -> None:
-        """Several mass configurations (six axes, NOTES 6): least squares on the known loads as the start."""
+        """Several mass configurations (six axes, method §6): least squares on the known loads as the start."""
         known = recording.known
         needed = self.rank + self.estimate_offset
         if int(known.sum()) < needed:
@@ -377,7 +377,7 @@ class ShapeFromMotion(LinearCalibrator):
 
     @torch.no_grad()
     def alternation_map(self, batch: Batch) -> torch.Tensor:
-        """One round of NOTES 5's alternation from the current ``(S, o)``; returns the new ``[S; o]`` (``(n+1) x p``).
+        """One round of method §5's alternation from the current ``(S, o)``; returns the new ``[S; o]`` (``(n+1) x p``).
 
         ``u_j <- normalize(least-squares direction of z_j - o)``, then ``[S; o] <- lstsq([M 1], Z)``
         with the known loads as their rows' motion.
@@ -417,7 +417,7 @@ class ShapeFromMotion(LinearCalibrator):
 
     @torch.no_grad()
     def orient(self, recording: CalibrationRecording) -> None:
-        """Turn the closed-form solution into the known loads' frame by Procrustes (NOTES 3).
+        """Turn the closed-form solution into the known loads' frame by Procrustes (method §3).
 
         Training then keeps that frame: the known-load term holds it, and with ``n - 1``
         known loads the mirror image is a discrete jump no gradient step makes. Without

@@ -28,13 +28,14 @@ from sfmnet.linalg.moments import (
     singular_values_from_scatter,
 )
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
+from sfmnet.models.contracts import FitMode
 from sfmnet.models.linear_calibrator import LinearCalibrator
 
 REFINEMENTS = ("alternation", "closed_form")
 
 
 class StreamedShapeFromMotion(LinearCalibrator):
-    """The closed form (paper eqs. 6-11, NOTES 2-4) and NOTES 5's alternation, each pass a sum over rows.
+    """The closed form (paper eqs. 6-11, method §2-4) and method §5's alternation, each pass a sum over rows.
 
     One trainer epoch is one pass over the file; what each pass adds up is all the next step needs:
 
@@ -44,9 +45,9 @@ class StreamedShapeFromMotion(LinearCalibrator):
        ``m^ = (z - mean) V Sigma^(-1/2)`` (eq. 8). The pass also gathers the known-load rows
        and a systematic sample of rows (for error bars and figures).
     2. The metric constraint's normal equations, ``D^T D`` and ``D^T 1`` of the design
-       ``D = [quadratic(m^), m^]`` (eq. 11, NOTES 4), from the rows projected with pass 1's
+       ``D = [quadratic(m^), m^]`` (eq. 11, method §4), from the rows projected with pass 1's
        subspace: ``Q`` and the ellipsoid's centre give ``S`` and ``o``, turned into the known
-       loads' frame by Procrustes (NOTES 3). This is the paper's closed form.
+       loads' frame by Procrustes (method §3). This is the paper's closed form.
     3. Each further pass is one alternation round (``refinement="alternation"``):
        ``u_j = normalize(load of z_j)``, then ``[S; o] = solve(A, B)`` with ``A = [M 1]^T [M 1]``
        and ``B = [M 1]^T Z`` summed over the pass, known loads as their rows' motion;
@@ -67,9 +68,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
 
     name = "streamed_shape_from_motion"
     recording = StreamedRecording.recording
-    streaming = True
     dev_run_passes = 3  # moments, metric constraint, one alternation round
-    alternating = False
     constrained = True
 
     def __init__(
@@ -89,6 +88,9 @@ class StreamedShapeFromMotion(LinearCalibrator):
         self.max_known_rows = max_known_rows
         self.passes = 0
         self.converged = False
+
+    def fit_mode(self) -> FitMode:
+        return FitMode.PASSES
 
     @property
     def rank(self) -> int:
@@ -252,7 +254,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         return self.known[:, 1 + len(self.data.channels) :]
 
     def solve_metric(self) -> None:
-        """Pass 2: the metric constraint (eq. 11, with the ellipsoid's centre for offsets), then the frame (NOTES 3)."""
+        """Pass 2: the metric constraint (eq. 11, with the ellipsoid's centre for offsets), then the frame (method §3)."""
         n = self.rank
         coefficients = torch.linalg.lstsq(self.metric_normal, self.metric_target[:, None]).solution[:, 0]
         ellipsoid = ellipsoid_from_coefficients(coefficients, n, self.data.magnitude)

@@ -1,4 +1,4 @@
-"""Affine PCA of rows streamed from disk, from their sufficient statistics (NOTES 11)."""
+"""Affine PCA of rows streamed from disk, from their sufficient statistics (method §11)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from torch import nn
 from sfmnet.data.row_file import RowBlock, RowData
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.moments import Moments, principal_subspace
+from sfmnet.models.contracts import FitMode
 
 
 class StreamingPCA(nn.Module):
@@ -24,9 +25,8 @@ class StreamingPCA(nn.Module):
 
     name = "pca"
     recording = "rows"
-    alternating = False
-    streaming = True
     dev_run_passes = 1
+    converged = True  # one pass is the whole fit
 
     def __init__(self, rank: int) -> None:
         super().__init__()
@@ -40,6 +40,15 @@ class StreamingPCA(nn.Module):
     @property
     def is_initialised(self) -> bool:
         return self.moments is not None
+
+    def fit_mode(self) -> FitMode:
+        return FitMode.PASSES
+
+    def prepare_step(self, batch: RowBlock) -> None:
+        """Nothing to do before a step."""
+
+    def monitor(self) -> dict[str, float]:
+        return {}
 
     def initialise(self, data: RowData) -> None:
         p = len(data.channels)

@@ -12,7 +12,6 @@ from matplotlib.figure import Figure
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from sfmnet.calibration import Calibration
 from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData
 from sfmnet.eval.held_out import load_errors
@@ -54,9 +53,7 @@ def leave_one_group_out(
             recording = data.recordings[model.recording]
             held = recording.groups == group
             truth = recording.true_loads if recording.true_loads is not None else recording.loads
-            calibration = Calibration(
-                matrix=model.calibration_matrix(), offset=model.physical_offset(), channels=data.channels, axes=data.axes
-            )
+            calibration = model.to_calibration(data.channels, data.axes)
             errors = load_errors(calibration, recording.readings[held], truth[held])
             folds.append(FoldError(name, group, int(held.sum()), errors))
     return folds

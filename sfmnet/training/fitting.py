@@ -13,7 +13,8 @@ from omegaconf import DictConfig
 from sfmnet.errors import SfmnetError
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.models.linear_calibrator import LinearCalibrator
-from sfmnet.training.learner_module import Learner, LearnerModule, OptimizerFactory
+from sfmnet.models.contracts import FitMode, Learner
+from sfmnet.training.learner_module import LearnerModule, OptimizerFactory
 
 
 def fit(
@@ -21,24 +22,27 @@ def fit(
     cfg: DictConfig,
     datamodule: L.LightningDataModule,
     ckpt_path: str | None = None,
+    true_matrix: torch.Tensor | None = None,
     **trainer_options,
 ) -> L.Trainer:
     """Fit ``model`` with the optimiser ``cfg.optimizer`` and a Trainer from ``cfg.trainer`` (plus ``trainer_options``).
 
     ``ckpt_path``: a checkpoint of an interrupted run of the same config; training resumes
     from it (model, optimiser state and epoch) to the result the uninterrupted run would give.
+    ``true_matrix``: simulated truth, logged against every epoch.
     """
+    passes = model.fit_mode() is FitMode.PASSES
     if ckpt_path is not None and not Path(ckpt_path).is_file():
         raise SfmnetError(f"ckpt_path {ckpt_path} is not a file: give a run's checkpoints/<method>/last.ckpt")
-    if ckpt_path is not None and getattr(model, "streaming", False):
+    if ckpt_path is not None and passes:
         raise SfmnetError("a streamed fit keeps its sums outside checkpoints and cannot resume: drop ckpt_path and rerun it")
-    if getattr(model, "streaming", False):
+    if passes:
         # The row data module deals its blocks to processes itself; a distributed sampler would split them again.
         trainer_options["use_distributed_sampler"] = False
         if cfg.trainer.get("fast_dev_run"):
             # A dev run of a fit in passes: one block a pass, as many passes as a result needs.
             trainer_options.update(fast_dev_run=False, limit_train_batches=1, max_epochs=model.dev_run_passes)
-    module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer))
+    module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer), true_matrix=true_matrix)
     trainer: L.Trainer = instantiate(cfg.trainer, **trainer_options)
     trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
     return trainer
@@ -62,12 +66,11 @@ def refine_in_process(
     if initialise:
         model.initialise(recording)
     batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
-    if getattr(model, "alternating", False):
+    if model.fit_mode() is FitMode.ALTERNATION:
         def epoch() -> None:
             model.alternate(batch)
     else:
         step = optimizer([p for p in model.parameters() if p.requires_grad])
-        prepare = getattr(model, "prepare_step", None)
 
         def closure() -> torch.Tensor:
             step.zero_grad()
@@ -76,8 +79,7 @@ def refine_in_process(
             return loss
 
         def epoch() -> None:
-            if prepare is not None:
-                prepare(batch)
+            model.prepare_step(batch)
             step.step(closure)
 
     for _ in range(epochs):

@@ -4,33 +4,37 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from lightning.pytorch.loggers import Logger
+
 from sfmnet.data.recording import CalibrationData
 from sfmnet.eval.figures import static_intervals_figure
 from sfmnet.io import write_csv_atomic
 from sfmnet.preprocessing.static_intervals import StaticIntervals
-from sfmnet.training.figure_output import publish_figure
+from sfmnet.training.components import publish_figure
 
 
-def report_static_intervals(data: CalibrationData, run_dir: Path) -> dict[str, float]:
-    """Write ``static_intervals.csv`` and ``figures/static_intervals.png`` (also in TensorBoard), print one line.
+def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger | None) -> tuple[dict[str, float], str | None]:
+    """Write ``static_intervals.csv`` and ``figures/static_intervals.png`` (also to ``logger``'s TensorBoard).
 
     Returns:
-        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total`` (empty without detection).
+        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, and the console
+        line (empty and None without detection).
     """
     detection = data.static_intervals
     if detection is None:
-        return {}
+        return {}, None
     line = describe(detection)
-    print(line)
     if not detection.independent:
         write_csv_atomic(run_dir / "static_intervals.csv", INTERVAL_COLUMNS, interval_rows(detection))
         title = line.replace("static intervals: ", "Static intervals: ", 1)
-        publish_figure(static_intervals_figure(detection, data.channels, title), run_dir, "static_intervals")
-    return {
+        figure = static_intervals_figure(detection, data.channels, title)
+        publish_figure(figure, run_dir / "figures" / "static_intervals.png", "static_intervals", logger)
+    metrics = {
         "static/intervals": float(detection.count),
         "static/rows_kept": float(detection.rows_kept),
         "static/rows_total": float(len(detection.mask)),
     }
+    return metrics, line
 
 
 def describe(detection: StaticIntervals) -> str:

@@ -1,0 +1,182 @@
+"""The Python API: :func:`calibrate` arrays in memory through the same config, trainer and checks as the CLI.
+
+``python -m sfmnet train experiment=calibrate_csv data.path=<file> ...`` reads a file into the
+columns this module builds from arrays; both then run :func:`sfmnet.training.run.train`, so a
+calibration from the API and one from the command line on the same numbers are the same numbers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from sfmnet.calibration import Calibration
+from sfmnet.errors import SfmnetError
+
+# Config groups chosen by name (``model="least_squares"``), as on the command line.
+CONFIG_GROUPS = ("model", "optimizer", "trainer")
+TIME_COLUMN = "time"
+
+
+def calibrate(
+    readings: Any,
+    magnitude: float | None = None,
+    loads: Any = None,
+    time: Any = None,
+    *,
+    channels: Sequence[str] | None = None,
+    axes: Sequence[str] | None = None,
+    run_dir: str | Path | None = None,
+    verbose: bool = False,
+    **config_overrides: Any,
+) -> Calibration:
+    """Calibrate a sensor from raw readings taken while one load of known magnitude is turned (method §2-5).
+
+    The same run as ``python -m sfmnet train experiment=calibrate_csv`` on a file holding these
+    columns: shape from motion with offsets and error bars, static intervals found when ``time``
+    is given, the goodness-of-fit checks; ``load = matrix @ (reading - offset)``.
+
+    Args:
+        readings: ``(f, p)`` raw readings (numpy, torch or nested lists), one row per sample, ``p >= n``.
+        magnitude: the load's magnitude in load units (e.g. ``9.81`` N for 1 kg, or
+            ``9.81`` m/s^2 for an accelerometer); or give ``**{"data.mass": kg}``.
+        loads: ``(f, n)`` known loads, NaN on the rows whose load is unknown (at least ``n - 1``
+            known rows fix the frame); None: no known loads, the frame is arbitrary (every
+            magnitude right) and ``axes`` names the ``n`` load axes.
+        time: ``(f,)`` the rows' time in seconds (turns on static-interval detection), or None.
+        channels: the ``p`` channel names (default ``z0, z1, ...``).
+        axes: the ``n`` load axis names (default ``x, y, z`` for ``n <= 3``, else ``l0, l1, ...``);
+            required with ``loads=None`` unless ``n`` is 3.
+        run_dir: write the full run directory there (calibration.json, metrics.json, figures,
+            TensorBoard); None: a temporary directory, removed afterwards.
+        verbose: print the run's summary and progress as the CLI does.
+        **config_overrides: the CLI's keys, dotted (``**{"model.refinement": "alternation"}``) or as
+            mappings (``model={"refinement": "alternation"}``); a group by name (``model="least_squares"``).
+
+    Returns:
+        The :class:`Calibration` the CLI writes to ``calibration.json``: ``matrix`` (``n x p``),
+        ``offset`` (``p``), ``matrix_std``, ``warnings``, ``error_bars_trustworthy``, and
+        :meth:`Calibration.apply` for new readings.
+
+    Raises:
+        SfmnetError: bad input, one line naming the problem and what to do.
+    """
+    readings = as_matrix(readings, "readings")
+    f, p = readings.shape
+    if loads is None:
+        n = len(axes) if axes is not None else 3
+        known = np.full((f, n), np.nan)
+    else:
+        known = as_matrix(loads, "loads")
+        if len(known) != f:
+            raise SfmnetError(f"loads has {len(known)} rows but readings has {f}: give one load row (NaN if unknown) per reading")
+        n = known.shape[1]
+    channels = list(channels) if channels is not None else [f"z{i}" for i in range(p)]
+    axes = list(axes) if axes is not None else (["x", "y", "z"][:n] if n <= 3 else [f"l{i}" for i in range(n)])
+    if len(channels) != p or len(axes) != n or len({*channels, *axes, TIME_COLUMN}) != p + n + 1:
+        raise SfmnetError(
+            f"give {p} distinct channel names and {n} distinct axis names (not '{TIME_COLUMN}'), "
+            f"not channels={channels} and axes={axes}"
+        )
+    columns = {name: readings[:, i] for i, name in enumerate(channels)}
+    columns.update({name: known[:, i] for i, name in enumerate(axes)})
+    data: dict[str, Any] = {
+        "path": "<arrays given to sfmnet.calibrate>",
+        "load_columns": axes if loads is not None else [],
+        "axes": None if loads is not None else axes,
+        "channel_columns": channels,
+        "magnitude": None if magnitude is None else float(magnitude),
+    }
+    if time is not None:
+        stamps = np.asarray(time, dtype=np.float64)
+        if stamps.shape != (f,):
+            raise SfmnetError(f"time has shape {stamps.shape} but readings has {f} rows: give one time (s) per reading")
+        columns[TIME_COLUMN] = stamps
+        data["time_column"] = TIME_COLUMN
+    from sfmnet.data.table_file import Table
+
+    table = Table(path=Path(data["path"]), columns=columns, text={})
+    cfg = calibration_config(data, config_overrides, verbose)
+    return run_calibration(cfg, table, run_dir, verbose)
+
+
+def as_matrix(values: Any, name: str) -> np.ndarray:
+    """``values`` as a 2-D float64 numpy array (from numpy, torch or lists), or a one-line error."""
+    if hasattr(values, "detach"):
+        values = values.detach().cpu().numpy()
+    try:
+        array = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise SfmnetError(f"{name} is not a numeric array ({error}): give an (f, p) array of numbers") from None
+    if array.ndim != 2 or 0 in array.shape:
+        raise SfmnetError(f"{name} has shape {array.shape}: give a 2-D array, one row per sample")
+    return array
+
+
+def calibration_config(data: Mapping[str, Any], overrides: Mapping[str, Any], verbose: bool) -> DictConfig:
+    """The CLI's ``experiment=calibrate_csv`` config with ``data`` set and ``overrides`` applied."""
+    from hydra import compose, initialize_config_dir
+
+    from sfmnet.cli import config_dir
+
+    groups = {key: value for key, value in overrides.items() if key in CONFIG_GROUPS and isinstance(value, str)}
+    for group, option in groups.items():
+        options = sorted(path.stem for path in (Path(config_dir()) / group).glob("*.yaml"))
+        if option not in options:
+            raise SfmnetError(
+                f"{group}={option} is not an option of the config group {group}: choose one of {', '.join(options)}"
+            )
+    with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
+        cfg = compose(config_name="train", overrides=["experiment=calibrate_csv", *(f"{k}={v}" for k, v in groups.items())])
+    values: dict[str, Any] = {f"data.{key}": value for key, value in data.items()}
+    values["trainer.enable_progress_bar"] = verbose
+    for key, value in overrides.items():
+        if key in CONFIG_GROUPS and isinstance(value, str):
+            continue
+        if isinstance(value, Mapping):
+            values.update({f"{key}.{inner}": item for inner, item in flatten(value).items()})
+        else:
+            values[key] = value
+    for key, value in values.items():
+        try:
+            OmegaConf.update(cfg, key, value, merge=False)
+        except OmegaConfBaseException:
+            raise SfmnetError(f"{key} is not a config key here: see python -m sfmnet train --help") from None
+    return cfg
+
+
+def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"static": {"threshold": 2}}`` -> ``{"static.threshold": 2}``."""
+    flat: dict[str, Any] = {}
+    for key, value in mapping.items():
+        if isinstance(value, Mapping) and value:
+            flat.update(flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, verbose: bool) -> Calibration:
+    """Fit through :func:`sfmnet.training.run.train` into ``run_dir`` (or a temporary one) and read its calibration."""
+    from hydra.utils import instantiate
+
+    from sfmnet.training.run import train
+
+    datamodule = instantiate(cfg.data, _partial_=True)(table=table)
+    with contextlib.ExitStack() as stack:
+        if run_dir is None:
+            run_dir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="sfmnet-"))) / "run"
+        elif Path(run_dir).exists() and any(Path(run_dir).iterdir()):
+            raise SfmnetError(f"run directory {run_dir} already holds files: give a new run_dir so nothing is overwritten")
+        if not verbose:
+            stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
+        train(cfg, Path(run_dir), datamodule=datamodule)
+        return Calibration.load(Path(run_dir) / "calibration.json")

@@ -1,0 +1,123 @@
+"""The Python API: sfmnet.calibrate gives the command line's numbers, from arrays, with one-line errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import sfmnet
+from tests.conftest import REPO, write_session
+from tests.test_cli import QUIET
+from tests.test_cli import sfmnet as run_cli
+
+
+def read_session(path: Path) -> tuple[list[str], np.ndarray]:
+    rows = list(csv.reader(path.open()))
+    return rows[0], np.array([[float(cell) if cell else np.nan for cell in row] for row in rows[1:]])
+
+
+def test_calibrate_gives_the_command_lines_calibration(tmp_path: Path):
+    """The CLI on a CSV and the API on the same file's arrays: calibration.json's numbers to 1e-9."""
+    write_session(tmp_path / "session.csv")
+    result = run_cli(
+        "train", "experiment=calibrate_csv", f"data.path={tmp_path / 'session.csv'}", "data.magnitude=9.81",
+        "data.time_column=time", f"hydra.run.dir={tmp_path / 'cli'}", *QUIET,
+    )
+    assert result.returncode == 0, result.stderr
+    cli = json.loads((tmp_path / "cli" / "calibration.json").read_text())
+
+    header, table = read_session(tmp_path / "session.csv")
+    cal = sfmnet.calibrate(
+        table[:, 1:7], magnitude=9.81, loads=table[:, 7:10], time=table[:, 0], channels=header[1:7], axes=header[7:10]
+    )
+    for key in ("matrix", "offset", "matrix_std", "offset_std"):
+        assert np.abs(np.array(cli[key]) - getattr(cal, key).numpy()).max() <= 1e-9, key
+    assert cal.residual_rms == pytest.approx(cli["residual_rms"], abs=1e-12)
+    assert cal.channels == cli["channels"] and cal.axes == cli["axes"] and cal.warnings == cli["warnings"]
+    assert cal.extra["method"] == "shape_from_motion" and cal.error_bars_trustworthy
+
+
+def test_calibrate_without_known_loads_torch_in_and_a_kept_run_dir(tmp_path: Path):
+    truth = write_session(tmp_path / "session.csv")
+    _, table = read_session(tmp_path / "session.csv")
+    readings = torch.from_numpy(table[:, 1:7])
+    cal = sfmnet.calibrate(readings, magnitude=9.81, axes=["x", "y", "z"], run_dir=tmp_path / "run")
+    assert (tmp_path / "run" / "calibration.json").is_file() and (tmp_path / "run" / "metrics.json").is_file()
+    assert cal.extra["frame"].startswith("arbitrary") and cal.axes == ["x", "y", "z"]
+    # The frame is free, the metric C^T C is not.
+    gram, true_gram = cal.matrix.T @ cal.matrix, truth.T @ truth
+    assert (gram - true_gram).norm() < 0.02 * true_gram.norm()
+    loads = cal.apply(readings)
+    assert isinstance(loads, torch.Tensor) and abs(float(loads.norm(dim=1).mean()) - 9.81) < 0.01
+
+
+def write_session_path(tmp_path: Path) -> Path:
+    write_session(tmp_path / "session.csv")
+    return tmp_path / "session.csv"
+
+
+def test_config_overrides_reach_the_fit(tmp_path: Path):
+    _, table = read_session(write_session_path(tmp_path))
+    readings, loads = table[:, 1:7], table[:, 7:10]
+    default = sfmnet.calibrate(readings, magnitude=9.81, loads=loads)
+    dotted = sfmnet.calibrate(readings, magnitude=9.81, loads=loads, **{"model.refinement": "penalty"})
+    nested = sfmnet.calibrate(readings, magnitude=9.81, loads=loads, model={"refinement": "penalty"})
+    assert torch.equal(dotted.matrix, nested.matrix) and not torch.equal(dotted.matrix, default.matrix)
+    # A group by name, as model=... on the command line (the triad model needs p = n: three channels).
+    triad = sfmnet.calibrate(readings[:, :3], magnitude=9.81, axes=["x", "y", "z"], model="bias_scale_misalignment")
+    assert triad.extra["method"] == "bias_scale_misalignment"
+
+
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        ({"readings": np.ones(5)}, r"readings has shape \(5,\): give a 2-D array"),
+        ({"readings": [["a", "b"]]}, r"readings is not a numeric array"),
+        ({"loads": np.full((7, 3), np.nan)}, r"loads has 7 rows but readings has 99"),
+        ({"time": np.arange(3.0)}, r"time has shape \(3,\) but readings has 99 rows"),
+        ({"channels": ["a"] * 6}, r"give 6 distinct channel names"),
+        ({"model.no_such_key": 1}, r"model.no_such_key is not a config key"),
+        ({"magnitude": None}, r"exactly one of data.magnitude"),
+        ({"model": "no_such_model"}, r"model=no_such_model is not an option of the config group model: choose one of .*bias_scale_misalignment"),
+    ],
+)
+def test_bad_input_is_one_line(tmp_path: Path, arguments: dict, message: str):
+    _, table = read_session(write_session_path(tmp_path))
+    given = {"readings": table[:, 1:7], "magnitude": 9.81, "loads": table[:, 7:10], **arguments}
+    with pytest.raises(sfmnet.SfmnetError, match=message) as caught:
+        sfmnet.calibrate(**given)
+    assert "\n" not in str(caught.value)
+
+
+def test_calibration_round_trips_through_its_file(tmp_path: Path):
+    _, table = read_session(write_session_path(tmp_path))
+    cal = sfmnet.calibrate(table[:, 1:7], magnitude=9.81, loads=table[:, 7:10])
+    cal.save(str(tmp_path / "cal.json"))
+    again = sfmnet.Calibration.load(str(tmp_path / "cal.json"))
+    assert again.to_dict() == cal.to_dict()
+    assert np.array_equal(again.apply(table[:4, 1:7]), cal.apply(table[:4, 1:7]))
+    with pytest.raises(sfmnet.SfmnetError, match=r"give \(f, 6\) raw readings"):
+        cal.apply(table[:4, 1:5])
+
+
+def test_import_sfmnet_is_light():
+    code = "import sys, sfmnet; print(sorted(m for m in ('lightning', 'hydra', 'matplotlib') if m in sys.modules))"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
+    assert result.stdout.strip() == "[]"
+
+
+def test_readme_python_api_example_runs(tmp_path: Path, monkeypatch):
+    """Every line of the README's "Python API" example, as a user would paste it."""
+    readme = (REPO / "README.md").read_text()
+    example = re.search(r"### Python API.*?```python\n(.*?)```", readme, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(example, "README.md (Python API)", "exec"), {})
+    assert (tmp_path / "cal.json").is_file()
