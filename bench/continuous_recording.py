@@ -3,7 +3,7 @@
     python bench/continuous_recording.py                       # seeds 0 1 2, orientations uniform and below
     python bench/continuous_recording.py --seeds 0 --laws below
 
-A simulated 3-axis sensor with 8 channels and offsets (sfmnet/data/simulated_stream.py) carries
+A simulated 3-axis sensor with 8 channels and offsets (sfmnet/simulators/simulated_stream.py) carries
 a 0.8 kg mass (7.85 N) through 30 poses held 2 s each with 1.5 s minimum-jerk moves between
 them (43 % of the rows in motion), 3 of the poses known (load columns filled on their static
 rows), 100 Hz. Each is calibrated through the real CLI (``python -m sfmnet train
@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from sfmnet.calibration import Calibration
-from sfmnet.data.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
+from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
 
 REPO = Path(__file__).resolve().parent.parent

@@ -34,7 +34,7 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from sfmnet.cli import config_dir
-from sfmnet.data.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
+from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
 from sfmnet.models.shape_from_motion import ShapeFromMotion

@@ -20,7 +20,7 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from sfmnet.cli import config_dir
-from sfmnet.data.simulated_sensor import ForceSensor3DataModule
+from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.fitting import refine_in_process
 from sfmnet.training.learner_module import matrix_error

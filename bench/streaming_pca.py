@@ -53,7 +53,7 @@ def run_method(method: str, path: Path) -> dict:
         import lightning as L
         import torch
 
-        from sfmnet.data.row_file import RowFileDataModule
+        from sfmnet.readers.row_file import RowFileDataModule
         from sfmnet.models.streaming_pca import StreamingPCA
         from sfmnet.training.learner_module import LearnerModule
 

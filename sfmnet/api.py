@@ -101,7 +101,7 @@ def calibrate(
             raise SfmnetError(f"time has shape {stamps.shape} but readings has {f} rows: give one time (s) per reading")
         columns[TIME_COLUMN] = stamps
         data["time_column"] = TIME_COLUMN
-    from sfmnet.data.table_file import Table
+    from sfmnet.readers.table_file import Table
 
     table = Table(path=Path(data["path"]), columns=columns, text={})
     cfg = calibration_config(data, config_overrides, verbose)
@@ -123,19 +123,7 @@ def as_matrix(values: Any, name: str) -> np.ndarray:
 
 def calibration_config(data: Mapping[str, Any], overrides: Mapping[str, Any], verbose: bool) -> DictConfig:
     """The CLI's ``experiment=calibrate_csv`` config with ``data`` set and ``overrides`` applied."""
-    from hydra import compose, initialize_config_dir
-
-    from sfmnet.cli import config_dir
-
-    groups = {key: value for key, value in overrides.items() if key in CONFIG_GROUPS and isinstance(value, str)}
-    for group, option in groups.items():
-        options = sorted(path.stem for path in (Path(config_dir()) / group).glob("*.yaml"))
-        if option not in options:
-            raise SfmnetError(
-                f"{group}={option} is not an option of the config group {group}: choose one of {', '.join(options)}"
-            )
-    with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=["experiment=calibrate_csv", *(f"{k}={v}" for k, v in groups.items())])
+    groups = [f"{key}={value}" for key, value in overrides.items() if key in CONFIG_GROUPS and isinstance(value, str)]
     values: dict[str, Any] = {f"data.{key}": value for key, value in data.items()}
     values["trainer.enable_progress_bar"] = verbose
     for key, value in overrides.items():
@@ -145,6 +133,25 @@ def calibration_config(data: Mapping[str, Any], overrides: Mapping[str, Any], ve
             values.update({f"{key}.{inner}": item for inner, item in flatten(value).items()})
         else:
             values[key] = value
+    return compose_run_config(["experiment=calibrate_csv", *groups], values)
+
+
+def compose_run_config(choices: list[str], values: Mapping[str, Any]) -> DictConfig:
+    """The CLI's config: ``choices`` (Hydra overrides: ``experiment=...``, ``model=...``), then each dotted
+    key of ``values`` set (a key the config does not have is a one-line error)."""
+    from hydra import compose, initialize_config_dir
+
+    from sfmnet.cli import config_dir
+
+    for choice in choices:
+        group, option = choice.split("=", 1)
+        options = sorted(path.stem for path in (Path(config_dir()) / group).glob("*.yaml"))
+        if option not in options:
+            raise SfmnetError(
+                f"{group}={option} is not an option of the config group {group}: choose one of {', '.join(options)}"
+            )
+    with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
+        cfg = compose(config_name="train", overrides=choices)
     for key, value in values.items():
         try:
             OmegaConf.update(cfg, key, value, merge=False)

@@ -8,7 +8,7 @@ from pathlib import Path
 import torch
 
 from sfmnet.calibration import Calibration
-from sfmnet.data.table_file import check_finite, read_table
+from sfmnet.readers.table_file import check_finite, read_table
 from sfmnet.errors import SfmnetError
 from sfmnet.io import write_csv_atomic
 

@@ -14,8 +14,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
 from sfmnet.cli import config_dir
-from sfmnet.data.mkv_robot import MkvDataModule
-from sfmnet.data.simulated_sensor import ForceSensor3DataModule
+from sfmnet.simulators.mkv_robot import MkvDataModule
+from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
 
 REPO = Path(__file__).resolve().parent.parent
 EXPERIMENTS = sorted(p.stem for p in (REPO / "conf" / "experiment").glob("*.yaml"))

@@ -20,10 +20,10 @@ import torch
 from sfmnet.apply import apply_calibration
 from sfmnet.cli import config_dir
 from sfmnet.config_check import check_overrides
-from sfmnet.data.ft_printed_sensor import FtPrintedSensorDataModule
-from sfmnet.data.row_file import RowFileDataModule
-from sfmnet.data.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
-from sfmnet.data.sensorimotor_csv import SensorimotorCsvDataModule
+from sfmnet.readers.ft_printed_sensor import FtPrintedSensorDataModule
+from sfmnet.readers.row_file import RowFileDataModule
+from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
+from sfmnet.readers.sensorimotor_csv import SensorimotorCsvDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
 from tests.conftest import REPO, compose_config, write_session
@@ -166,7 +166,7 @@ def unreadable_npy(tmp_path: Path) -> Action:
 
 
 def continuous(tmp_path: Path, poses: int, known_in_motion: bool = False, known_at_edge: bool = False) -> Action:
-    """A continuous recording (sfmnet/data/simulated_stream.py) calibrated with its time column (static intervals on)."""
+    """A continuous recording (sfmnet/simulators/simulated_stream.py) calibrated with its time column (static intervals on)."""
     generator = torch.Generator().manual_seed(0)
     sensor = stream_sensor(6, 9.81, noise_fraction=0.001, offset_scale=0.2, generator=generator)
     recording = simulate_stream(sensor, 1.0, poses=poses, rate=50.0, generator=generator)

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from sfmnet.apply import apply_calibration
-from sfmnet.data.simulated_sensor import ForceSensor3DataModule
+from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
 from tests.conftest import compose_config, write_session

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from sfmnet.calibration import calibration_matrix
-from sfmnet.data.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
+from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.factorisation import (
     metric_gram,

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import lightning as L
@@ -17,7 +16,7 @@ from hydra.utils import instantiate
 from sfmnet.calibration import calibration_matrix
 from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
-from sfmnet.data.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
+from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import LearnerModule

@@ -8,8 +8,8 @@ import pytest
 import torch
 from hydra.utils import instantiate
 
-from sfmnet.data.simulated_sensor import FingertipDataModule
-from sfmnet.data.simulation import ORIENTATION_LAWS, oriented_directions
+from sfmnet.simulators.simulated_sensor import FingertipDataModule
+from sfmnet.simulators.simulation import ORIENTATION_LAWS, oriented_directions
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.uncertainty import shape_information
 from sfmnet.models.shape_from_motion import ShapeFromMotion

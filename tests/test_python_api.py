@@ -14,7 +14,8 @@ import pytest
 import torch
 
 import sfmnet
-from tests.conftest import REPO, write_session
+from sfmnet.training.run import train
+from tests.conftest import REPO, compose_config, experiment_overrides, write_session
 from tests.test_cli import QUIET
 from tests.test_cli import sfmnet as run_cli
 
@@ -121,3 +122,36 @@ def test_readme_python_api_example_runs(tmp_path: Path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     exec(compile(example, "README.md (Python API)", "exec"), {})
     assert (tmp_path / "cal.json").is_file()
+
+
+def test_command_learner_reads_the_command_lines_commands(tmp_path: Path):
+    """CommandLearner on a log's first 70 % gives the CLI's held-out predictions (experiment=sensorimotor_csv)."""
+    overrides = experiment_overrides("sensorimotor_csv", tmp_path)
+    train(compose_config(["experiment=sensorimotor_csv", *overrides]), tmp_path / "run")
+    rows = list(csv.DictReader((tmp_path / "log.csv").open()))
+    sensors = next(o for o in overrides if o.startswith("data.sensor_columns=")).split("=", 1)[1].strip("[]").split(",")
+    readings = np.array([[float(row[name]) for name in sensors] for row in rows])
+    commands = np.array([[row["drive"], row["steer"]] for row in rows], dtype=object)
+    split = round(0.7 * len(rows))
+    learner = sfmnet.CommandLearner().fit(readings[:split], commands[:split])
+    predicted = list(csv.DictReader((tmp_path / "run" / "predictions.csv").open()))
+    assert learner.rank_ == json.loads((tmp_path / "run" / "metrics.json").read_text())["rank"]
+    assert (learner.predict(readings[split:]) == [[p["drive_learnt"], p["steer_learnt"]] for p in predicted]).all()
+    confidence = np.array([float(p["confidence"]) for p in predicted])
+    assert np.abs(learner.predict_confidence(readings[split:]) - confidence).max() < 1e-6
+    assert learner.transform(readings[split:]).shape == (len(rows) - split, learner.basis_.shape[1])
+
+
+def test_command_learner_errors_and_the_autoencoder(tmp_path: Path):
+    generator = np.random.default_rng(0)
+    sensors = generator.normal(size=(400, 4))
+    commands = np.where(sensors[:, 0] > 0, "go", "stop")
+    with pytest.raises(sfmnet.SfmnetError, match="not fitted yet"):
+        sfmnet.CommandLearner().predict(sensors)
+    with pytest.raises(sfmnet.SfmnetError, match="no parameter 'ranks'"):
+        sfmnet.CommandLearner().set_params(ranks=2)
+    learner = sfmnet.CommandLearner(learner="autoencoder", rank=2, max_epochs=5).fit(sensors, commands)
+    assert learner.predict(sensors).shape == (400,) and set(learner.labels_[0]) == {"go", "stop"}
+    assert (learner.predict(sensors) == commands).mean() > 0.6
+    with pytest.raises(sfmnet.SfmnetError, match="sensors has 3 columns but the learner was fitted on 4"):
+        learner.predict(sensors[:, :3])

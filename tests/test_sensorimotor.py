@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from sfmnet.data.mkv_robot import (
+from sfmnet.simulators.mkv_robot import (
     SENSORS,
     MkvDataModule,
     OperatorParameters,
@@ -17,7 +17,7 @@ from sfmnet.data.mkv_robot import (
     Room,
     simulate_episode,
 )
-from sfmnet.data.sensorimotor_csv import SensorimotorCsvDataModule
+from sfmnet.readers.sensorimotor_csv import SensorimotorCsvDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.eval.command_metrics import auroc, cohen_kappa, direction_accuracy, when_f1
 from sfmnet.linalg.subspace import (

@@ -10,8 +10,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from sfmnet.data.csv_calibration import CsvCalibrationDataModule
-from sfmnet.data.simulated_force_torque import ForceTorqueSensorDataModule
+from sfmnet.readers.csv_calibration import CsvCalibrationDataModule
+from sfmnet.simulators.simulated_force_torque import ForceTorqueSensorDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.wrench import wrench_map
 from sfmnet.models.least_squares import LeastSquaresCalibration

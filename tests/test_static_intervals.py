@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from sfmnet.calibration import Calibration
-from sfmnet.data.simulated_stream import ContinuousRecording, simulate_stream, stream_sensor, write_stream_csv
+from sfmnet.simulators.simulated_stream import ContinuousRecording, simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
 from sfmnet.preprocessing.static_intervals import find_static_intervals
 from sfmnet.training.run import train

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from sfmnet.data.row_file import RowFileDataModule, ShardSampler, csv_to_npy
+from sfmnet.readers.row_file import RowFileDataModule, ShardSampler, csv_to_npy
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.moments import Moments, principal_subspace
 from sfmnet.training.run import train

@@ -7,7 +7,7 @@ import functools
 import pytest
 import torch
 
-from sfmnet.data.simulated_sensor import ForceSensor3DataModule
+from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.fitting import refine_in_process
 
@@ -66,7 +66,7 @@ def test_error_bars_shrink_with_more_samples_except_the_frame():
 
 def test_auto_refinement_integrates_directions_out_at_low_snr():
     """At SNR 2 the marginal likelihood is nearer the truth than the alternation (bench: 1.0x against 1.2x the bound)."""
-    from sfmnet.data.simulated_sensor import FingertipDataModule
+    from sfmnet.simulators.simulated_sensor import FingertipDataModule
     from sfmnet.linalg.frame import orthogonal_procrustes
 
     errors = {"auto": 0.0, "alternation": 0.0}

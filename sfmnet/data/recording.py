@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import numpy as np
 import torch
 
 from sfmnet.linalg.frame import MirrorHint
@@ -138,3 +139,9 @@ class CalibrationData:
                 raise ValueError(f"recording {name} has no groups")
             recordings[name] = recording.without(recording.groups == group)
         return replace(self, recordings=recordings, evaluations=[], test=None)
+
+
+def first_magnitude_mismatch(forces: np.ndarray, magnitudes: np.ndarray, tolerance: float) -> int | None:
+    """The first of the known ``forces`` (``k x 3``) whose norm is off its ``magnitudes`` (``k``) by more than ``tolerance``."""
+    off = np.abs(np.linalg.norm(forces, axis=1) / magnitudes - 1) > tolerance
+    return int(np.argmax(off)) if off.any() else None

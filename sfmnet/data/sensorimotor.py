@@ -112,6 +112,17 @@ class SensorimotorDataModule(L.LightningDataModule, ABC):
         return {self.recording: DataLoader(dataset, batch_size=self.batch_size or len(vectors), shuffle=self.batch_size is not None)}
 
 
+class FixedSensorimotorDataModule(SensorimotorDataModule):
+    """Serves data already in memory (the estimators of :mod:`sfmnet.estimators`)."""
+
+    def __init__(self, data: SensorimotorData, batch_size: int | None = None) -> None:
+        super().__init__(batch_size=batch_size)
+        self.fixed = data
+
+    def build(self) -> SensorimotorData:
+        return self.fixed
+
+
 def check_training_vectors(data: SensorimotorData) -> None:
     """Refuse what no linear learner can use: constant sensors, fewer samples than columns."""
     sensors = np.concatenate([e.sensors for e in data.train])

@@ -7,10 +7,8 @@ import math
 import numpy as np
 import torch
 
-from sfmnet.data.csv_calibration import first_magnitude_mismatch
-from sfmnet.data.recording import CalibrationRecording
-from sfmnet.data.row_file import RowBlock
-from sfmnet.data.streamed_calibration import StreamedRecording
+from sfmnet.data.recording import CalibrationRecording, first_magnitude_mismatch
+from sfmnet.data.rows import RowBlock, StreamedRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.anderson import AndersonAcceleration
 from sfmnet.linalg.factorisation import (

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from sfmnet.data.row_file import RowBlock, RowData
+from sfmnet.data.rows import RowBlock, RowData
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.moments import Moments, principal_subspace
 from sfmnet.models.contracts import FitMode

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import torch
 
-from sfmnet.calibration import Calibration
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import motion_figure, spectrum_figure

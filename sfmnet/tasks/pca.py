@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sfmnet.data.row_file import RowData
+from sfmnet.data.rows import RowData
 from sfmnet.io import save_npz_atomic
 from sfmnet.models.streaming_pca import StreamingPCA
 from sfmnet.tasks.base import FittedMethod, MethodResult, Task

@@ -6,7 +6,7 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
-from sfmnet.data.simulation import DTYPE, LinearSensor, random_directions
+from sfmnet.simulators.simulation import DTYPE, LinearSensor, random_directions
 from sfmnet.linalg.wrench import STANDARD_GRAVITY, wrench_map
 
 WRENCH_AXES = ["fx", "fy", "fz", "mx", "my", "mz"]

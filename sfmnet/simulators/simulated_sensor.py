@@ -9,7 +9,7 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData
-from sfmnet.data.simulation import (
+from sfmnet.simulators.simulation import (
     DTYPE,
     LinearSensor,
     LoadApplicationErrors,
@@ -39,7 +39,7 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         orientation_bias: crowd the orientations towards the last axis (0: none).
         orientation_law: how the unknown orientations are spread: ``"uniform"``, ``"hemisphere"``,
             ``"band"`` (near the equator), ``"cone"`` (within 60 degrees of the last axis) or
-            ``"poses"`` (a few poses, many samples each); see :func:`sfmnet.data.simulation.oriented_directions`.
+            ``"poses"`` (a few poses, many samples each); see :func:`sfmnet.simulators.simulation.oriented_directions`.
         poses: the number of poses of the ``"poses"`` law.
         noise_fraction: electrical noise std as a fraction of a channel's full-load signal.
         offset_scale: std of the channel offsets (raw units); 0 gives tared readings.

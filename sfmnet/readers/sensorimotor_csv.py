@@ -13,7 +13,7 @@ from sfmnet.data.sensorimotor import (
     SensorimotorDataModule,
     label_indices,
 )
-from sfmnet.data.table_file import check_finite, read_table
+from sfmnet.readers.table_file import check_finite, read_table
 from sfmnet.errors import SfmnetError
 
 

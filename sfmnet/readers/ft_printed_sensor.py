@@ -15,7 +15,7 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
-from sfmnet.data.table_file import check_finite, read_table
+from sfmnet.readers.table_file import check_finite, read_table
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.wrench import wrench_map
 

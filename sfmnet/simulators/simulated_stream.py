@@ -1,6 +1,6 @@
 """A continuous recording: a mass carried from pose to pose while the logger runs on, inertial loads included.
 
-The sensor (a :class:`~sfmnet.data.simulation.LinearSensor`) holds the mass at its origin. Each
+The sensor (a :class:`~sfmnet.simulators.simulation.LinearSensor`) holds the mass at its origin. Each
 pose is an orientation held still for ``hold`` seconds; between poses the orientation is
 interpolated by slerp and the sensor carried along a straight line, both on a minimum-jerk
 profile over ``move`` seconds, so the load is physical throughout: ``m (g - a)`` in the sensor
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-from sfmnet.data.simulation import DTYPE, LinearSensor, random_directions
+from sfmnet.simulators.simulation import DTYPE, LinearSensor, random_directions
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
 
 ORIENTATION_LAWS = ("uniform", "below")

@@ -8,9 +8,9 @@ import numpy as np
 import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
-from sfmnet.data.recording import CalibrationData, CalibrationRecording
-from sfmnet.data.static_rows import fitted_rows, static_settings
-from sfmnet.data.table_file import Table, check_finite, read_table
+from sfmnet.data.recording import CalibrationData, CalibrationRecording, first_magnitude_mismatch
+from sfmnet.readers.static_rows import fitted_rows, static_settings
+from sfmnet.readers.table_file import Table, check_finite, read_table
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.linalg.wrench import STANDARD_GRAVITY, wrench_map
@@ -47,7 +47,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             leave-one-group-out evaluation.
         gravity: m/s^2, for ``mass`` and ``configurations``.
         static_intervals: leave out the rows in motion of a continuous recording
-            (:mod:`sfmnet.data.static_rows`): None: with a ``time_column``; True: also without
+            (:mod:`sfmnet.readers.static_rows`): None: with a ``time_column``; True: also without
             one (row order); False: fit every row.
         held_out_intervals: fit on every other static interval (or group) and keep the rest as
             ``test``, scored by how far each held-out interval's mean load is from ``magnitude``.
@@ -256,12 +256,6 @@ def calibration_magnitude(magnitude: float | None, mass: float | None, gravity: 
     if not value > 0:
         raise SfmnetError(f"the load magnitude must be positive, got {value}")
     return float(value)
-
-
-def first_magnitude_mismatch(forces: np.ndarray, magnitudes: np.ndarray, tolerance: float) -> int | None:
-    """The first of the known ``forces`` (``k x 3``) whose norm is off its ``magnitudes`` (``k``) by more than ``tolerance``."""
-    off = np.abs(np.linalg.norm(forces, axis=1) / magnitudes - 1) > tolerance
-    return int(np.argmax(off)) if off.any() else None
 
 
 def mirror_hint_fields(hint: dict, load_columns: list[str]) -> tuple[int, int, int]:

@@ -2,50 +2,23 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from sfmnet.data.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields
+from sfmnet.readers.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields
 from sfmnet.data.recording import CalibrationData
-from sfmnet.data.row_file import NpyLayout, RowData, RowFileDataModule, column_index, mapped_rows
-from sfmnet.data.static_rows import fitted_rows, static_settings
+from sfmnet.readers.row_file import RowFileDataModule, column_index
+from sfmnet.data.rows import NpyLayout, StreamedRecording, mapped_rows
+from sfmnet.readers.static_rows import fitted_rows, static_settings
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
 from sfmnet.preprocessing.static_intervals import CHUNK_ROWS, StaticIntervals
 
 
-@dataclass
-class StreamedRecording(RowData):
-    """A row file of raw channels and load columns (NaN where the load is unknown), every row the same mass.
-
-    Attributes (beyond :class:`RowData`):
-        magnitude: ``F``, the calibration load's magnitude (load units).
-        known_load_tolerance: relative disagreement allowed between a known load's magnitude and ``F``.
-        mirror_hint: which side of the mirror the row ``hint_reading`` lies on (``sample`` unused), or None.
-        hint_reading: ``p`` raw readings of the mirror hint's row.
-        keep: ``f`` bool, the rows fitted (the static intervals of a continuous recording); None: all.
-    """
-
-    magnitude: float = math.nan
-    known_load_tolerance: float = 0.02
-    mirror_hint: MirrorHint | None = None
-    hint_reading: torch.Tensor | None = None
-    keep: np.ndarray | None = None
-    axes: list[str] = field(default_factory=list)
-
-    recording = "streamed_rotation"
-
-    @property
-    def rank(self) -> int:
-        return len(self.axes)
-
-
 class StreamedCalibrationDataModule(RowFileDataModule):
-    """The calibration file of :class:`~sfmnet.data.csv_calibration.CsvCalibrationDataModule`, streamed in blocks.
+    """The calibration file of :class:`~sfmnet.readers.csv_calibration.CsvCalibrationDataModule`, streamed in blocks.
 
     Same columns and meaning (load columns empty or NaN except on the few known-load rows), but
     the rows are read block by block through a memory map (a CSV converted once to ``.npy``),
@@ -66,7 +39,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         load_unit: for reports.
         gravity: m/s^2, for ``mass``.
         block_rows, cache_dir: see :class:`RowFileDataModule`.
-        static_intervals, time_unit, static: see :class:`~sfmnet.data.csv_calibration.CsvCalibrationDataModule`;
+        static_intervals, time_unit, static: see :class:`~sfmnet.readers.csv_calibration.CsvCalibrationDataModule`;
             detected in chunks through the memory map (memory: a byte per row for the mask).
     """
 

@@ -1,0 +1,120 @@
+"""Row files as the models see them: where the rows lie on disk, and the blocks a pass serves (method §11)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from sfmnet.errors import SfmnetError
+from sfmnet.linalg.frame import MirrorHint
+
+SHIFT_ROWS = 10_000
+BLOCK_BYTES = 32 * 2**20
+
+
+@dataclass(frozen=True)
+class NpyLayout:
+    """Where a C-order ``.npy``'s rows lie in its file."""
+
+    path: Path
+    offset: int
+    dtype: np.dtype
+    shape: tuple[int, int]
+
+
+def npy_layout(path: Path) -> NpyLayout:
+    with path.open("rb") as stream:
+        version = np.lib.format.read_magic(stream)
+        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, fortran_order, dtype = read_header(stream)
+        offset = stream.tell()
+    if fortran_order or len(shape) != 2:
+        raise SfmnetError(
+            f"{path} holds {'a Fortran-order' if fortran_order else 'an'} array of shape {shape}: "
+            "save a C-order 2-D array (np.save of a row matrix)"
+        )
+    return NpyLayout(path, offset, dtype, shape)
+
+
+def mapped_rows(layout: NpyLayout, start: int, count: int) -> np.memmap:
+    """Rows ``[start, start + count)`` through a memory map of just those rows."""
+    p = layout.shape[1]
+    return np.memmap(
+        layout.path, dtype=layout.dtype, mode="r", shape=(count, p), offset=layout.offset + start * p * layout.dtype.itemsize
+    )
+
+
+class RowBlock(NamedTuple):
+    """One training step's rows: ``start`` (the first row's index in the file), ``readings``
+    (``b x p`` float64, the channel columns minus the data's shift) and ``loads`` (``b x n``
+    float64, NaN where unknown; ``b x 0`` without load columns)."""
+
+    start: int
+    readings: torch.Tensor
+    loads: torch.Tensor
+
+
+@dataclass
+class RowData:
+    """A row matrix on disk: where it lies (``layout``, ``f x columns``), the ``channels`` the statistics
+    are of (``p`` names, at ``channel_index``), their ``shift`` (``p``, the first rows' mean) and any
+    ``load_columns`` (at ``load_index``). The loader's blocks arrive as :class:`RowBlock`.
+    """
+
+    layout: NpyLayout
+    channels: list[str]
+    channel_index: list[int]
+    shift: torch.Tensor
+    load_columns: list[str] = field(default_factory=list)
+    load_index: list[int] = field(default_factory=list)
+
+    recording = "rows"
+
+    @property
+    def rows(self) -> int:
+        return self.layout.shape[0]
+
+    @property
+    def recordings(self) -> dict[str, RowData]:
+        return {self.recording: self}
+
+    def first_non_finite_row(self) -> int | None:
+        """The first row with a NaN, empty or infinite channel cell (a scan: for error messages only)."""
+        block = max(1, BLOCK_BYTES // (8 * self.layout.shape[1]))
+        for start in range(0, self.rows, block):
+            values = np.asarray(mapped_rows(self.layout, start, min(block, self.rows - start))[:, self.channel_index])
+            bad = ~np.isfinite(values).all(axis=1)
+            if bad.any():
+                return start + int(np.argmax(bad))
+        return None
+
+
+@dataclass
+class StreamedRecording(RowData):
+    """A row file of raw channels and load columns (NaN where the load is unknown), every row the same mass.
+
+    Attributes (beyond :class:`RowData`):
+        magnitude: ``F``, the calibration load's magnitude (load units).
+        known_load_tolerance: relative disagreement allowed between a known load's magnitude and ``F``.
+        mirror_hint: which side of the mirror the row ``hint_reading`` lies on (``sample`` unused), or None.
+        hint_reading: ``p`` raw readings of the mirror hint's row.
+        keep: ``f`` bool, the rows fitted (the static intervals of a continuous recording); None: all.
+    """
+
+    magnitude: float = math.nan
+    known_load_tolerance: float = 0.02
+    mirror_hint: MirrorHint | None = None
+    hint_reading: torch.Tensor | None = None
+    keep: np.ndarray | None = None
+    axes: list[str] = field(default_factory=list)
+
+    recording = "streamed_rotation"
+
+    @property
+    def rank(self) -> int:
+        return len(self.axes)
