@@ -8,6 +8,8 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
+from sfmnet.data.batches import batch_loader
+
 from sfmnet.data.recording import CalibrationData
 
 
@@ -45,9 +47,7 @@ class CalibrationDataModule(L.LightningDataModule, ABC):
         for name, recording in self.data.recordings.items():
             rows = len(recording.readings)
             dataset = TensorDataset(torch.arange(rows), recording.readings, recording.loads)
-            loaders[name] = DataLoader(
-                dataset, batch_size=self.batch_size or rows, shuffle=self.batch_size is not None
-            )
+            loaders[name] = batch_loader(dataset, self.batch_size)
         return loaders
 
 
@@ -60,3 +60,4 @@ class FixedCalibrationDataModule(CalibrationDataModule):
 
     def build(self) -> CalibrationData:
         return self.fixed
+

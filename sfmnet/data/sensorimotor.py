@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
+from sfmnet.data.batches import batch_loader
 from sfmnet.errors import SfmnetError
 
 
@@ -109,7 +110,7 @@ class SensorimotorDataModule(L.LightningDataModule, ABC):
         assert self.data is not None, "setup() runs before the loaders"
         vectors = self.data.vectors(self.data.train)
         dataset = TensorDataset(torch.arange(len(vectors)), vectors)
-        return {self.recording: DataLoader(dataset, batch_size=self.batch_size or len(vectors), shuffle=self.batch_size is not None)}
+        return {self.recording: batch_loader(dataset, self.batch_size)}
 
 
 class FixedSensorimotorDataModule(SensorimotorDataModule):

@@ -16,6 +16,10 @@ from matplotlib.figure import Figure
 from sfmnet.preprocessing.static_intervals import StaticIntervals
 
 
+# Most samples drawn in one scatter.
+MAX_POINTS = 20_000
+
+
 def motion_figure(motion: torch.Tensor, magnitude: float, unit: str, title: str) -> Figure | None:
     """The recovered loads: a polar plot for 2 axes (Fig. 4), points on the sphere for 3 (Fig. 5).
 
@@ -27,8 +31,12 @@ def motion_figure(motion: torch.Tensor, magnitude: float, unit: str, title: str)
         The figure, or None for other ``n``.
     """
     n = motion.shape[1]
-    m = motion.detach().cpu()
+    # Every k-th sample beyond MAX_POINTS: a million points draw for minutes and show no more.
+    stride = max(1, math.ceil(len(motion) / MAX_POINTS))
+    m = motion.detach().cpu()[::stride]
     deviation = 100 * (m.norm(dim=1) / magnitude - 1)
+    if stride > 1:
+        title = f"{title} (every {stride}th of {len(motion):,} samples)"
     if n == 2:
         fig = plt.figure(figsize=(9, 4.2))
         polar = fig.add_subplot(1, 2, 1, projection="polar")

@@ -117,10 +117,10 @@ def constraint_noise_ratio(loads: torch.Tensor, off_space: torch.Tensor, matrix:
     return float(((loads.norm(dim=1) - magnitude) / spread).pow(2).mean().sqrt())
 
 
-def chi_square_quantile(dof: int, z: float) -> float:
-    """Wilson-Hilferty approximation of the chi-square quantile at standard-normal quantile ``z``."""
+def chi_square_quantile(dof: torch.Tensor, z: float) -> torch.Tensor:
+    """Wilson-Hilferty approximation of the chi-square quantile at standard-normal quantile ``z``, per entry of ``dof``."""
     a = 2 / (9 * dof)
-    return dof * (1 - a + z * math.sqrt(a)) ** 3
+    return dof * (1 - a + z * a.sqrt()) ** 3
 
 
 def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Tensor, float]:
@@ -142,9 +142,10 @@ def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Ten
     if not bool(free.any()):
         return torch.zeros_like(free), math.nan
     squares, dof = squares[free], dof[free]
-    medians = torch.tensor([chi_square_quantile(int(k), 0.0) for k in dof.tolist()], dtype=squares.dtype)
+    dof = dof.to(squares.dtype)
+    medians = chi_square_quantile(dof, 0.0)
     variance = float((squares / medians).median())
-    limits = torch.tensor([chi_square_quantile(int(k), OUTLIER_Z) for k in dof.tolist()], dtype=squares.dtype)
+    limits = chi_square_quantile(dof, OUTLIER_Z)
     outliers = torch.zeros_like(free)
     outliers[free] = squares > limits * variance
     return outliers, math.sqrt(max(variance, 0.0))

@@ -25,6 +25,8 @@ from sfmnet.calibration import calibration_matrix
 
 # Eigenvalues of the information below this fraction of the largest are the gauge, not data.
 GAUGE_RTOL = 1e-10
+# Rows whose information is summed at once (memory ~ rows x p x (n + 1) p doubles).
+INFORMATION_CHUNK_ROWS = 20_000
 
 
 @dataclass(frozen=True)
@@ -43,9 +45,16 @@ class CalibrationUncertainty:
 
 
 def tangent_bases(directions: torch.Tensor) -> torch.Tensor:
-    """Orthonormal bases of the planes orthogonal to each row: ``f x n`` in, ``f x n x (n-1)`` out."""
-    u, _, _ = torch.linalg.svd(directions[:, :, None])
-    return u[:, :, 1:]
+    """Orthonormal bases of the planes orthogonal to each unit row: ``f x n`` in, ``f x n x (n-1)`` out.
+
+    The last ``n - 1`` columns of the Householder reflection ``H = I - 2 v v^T / |v|^2``,
+    ``v = u + sign(u_1) e_1``, which maps ``u`` to ``-sign(u_1) e_1`` (``v`` never near zero).
+    """
+    n = directions.shape[1]
+    v = directions.clone()
+    v[:, 0] += torch.where(directions[:, 0] >= 0, 1.0, -1.0)
+    reflection = torch.eye(n, dtype=directions.dtype) - 2 * v[:, :, None] * v[:, None, :] / v.pow(2).sum(dim=1)[:, None, None]
+    return reflection[:, :, 1:]
 
 
 def global_jacobian(motion: torch.Tensor, channels: int, estimate_offset: bool) -> torch.Tensor:
@@ -81,16 +90,39 @@ def shape_information(
     """
     p = shape.shape[1]
     known = global_jacobian(known_motion, p, estimate_offset)
-    unknown = global_jacobian(torch.einsum("jd,jdn->jn", unknown_directions, unknown_maps), p, estimate_offset)
-    information = torch.einsum("jpa,jpb->ab", unknown, unknown)
-    if len(unknown_directions) and unknown_directions.shape[1] > 1:
-        # d z_j / d delta_j = T_j^T D_j S, the direction's tangent coordinates.
-        tangent_maps = torch.einsum("jde,jdn->jen", tangent_bases(unknown_directions), unknown_maps)
-        direction = torch.einsum("jen,np->jpe", tangent_maps, shape)
-        cross = torch.einsum("jpa,jpd->jad", unknown, direction)
-        local = torch.einsum("jpd,jpe->jde", direction, direction)
-        information = information - torch.einsum("jad,jde,jbe->ab", cross, torch.linalg.inv(local), cross)
-    return torch.einsum("jpa,jpb->ab", known, known) + unknown_weight * information
+    information = torch.einsum("jpa,jpb->ab", known, known)
+    # In chunks of rows: the per-row Jacobians of a million rows would take gigabytes at once.
+    for start in range(0, len(unknown_directions), INFORMATION_CHUNK_ROWS):
+        rows = slice(start, start + INFORMATION_CHUNK_ROWS)
+        information = information + unknown_weight * unknown_rows_information(
+            shape, unknown_directions[rows], unknown_maps[rows], estimate_offset
+        )
+    return information
+
+
+def unknown_rows_information(
+    shape: torch.Tensor, directions: torch.Tensor, maps: torch.Tensor, estimate_offset: bool
+) -> torch.Tensor:
+    """The unknown-load rows' share of :func:`shape_information`, each row's direction eliminated (Schur complement).
+
+    Row ``j``'s Jacobian is ``J_j = [m_j kron I_p, I_p]`` (``m_j = u_j D_j``); eliminating its direction
+    leaves ``J_j^T Q_j J_j``, ``Q_j = I - P_j`` the projector off the span of ``d z_j / d delta_j``
+    (``p x (d-1)``). Its Kronecker structure makes the sum one matrix product:
+    ``sum_j (w_j w_j^T) kron Q_j``, ``w_j = [m_j, 1]``.
+    """
+    p = shape.shape[1]
+    motion = torch.einsum("jd,jdn->jn", directions, maps)
+    weights = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if estimate_offset else motion
+    projector = torch.eye(p, dtype=shape.dtype).expand(len(directions), p, p)
+    if directions.shape[1] > 1:
+        # d z_j / d delta_j = (T_j^T D_j S)^T, the direction's tangent coordinates.
+        tangent = torch.einsum("jde,jdn,np->jpe", tangent_bases(directions), maps, shape)
+        local = tangent.transpose(1, 2) @ tangent
+        projector = projector - tangent @ torch.linalg.solve(local, tangent.transpose(1, 2))
+    k = weights.shape[1]
+    outer = (weights[:, :, None] * weights[:, None, :]).reshape(len(weights), k * k)
+    blocks = (outer.T @ projector.reshape(len(weights), p * p)).reshape(k, k, p, p)
+    return blocks.permute(0, 2, 1, 3).reshape(k * p, k * p)
 
 
 def calibration_uncertainty(

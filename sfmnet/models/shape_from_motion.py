@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import torch
 
@@ -42,11 +43,24 @@ MARGINAL_BELOW_SNR = 50.0
 # Rows x grid directions beyond which "auto" does not take the marginal: each optimiser evaluation
 # touches every (row, direction) pair, and a fit makes hundreds (10,000 rows on the sphere: minutes).
 MARGINAL_MAX_CELLS = 2e7
+# Relative change of [S; o] in one alternation round at which the alternation has converged
+# (the streamed fit stops at 1e-9; below 1e-10 rounds only creep along the weakly held frame).
+ALTERNATION_TOLERANCE = 1e-10
 # Smoothed EM steps of the directions' distribution per training step of the marginal refinement.
 PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
 # measured on the orientation laws of bench/crb_ratio.py --laws (SNR 2-20).
 PRIOR_SMOOTHING = 3.0
+
+
+class ScaledBatch(NamedTuple):
+    """A batch in the parameters' units: readings (``b x p``), loads (``b x n``, NaN where unknown), the
+    unknown-row mask and each row's mass configuration (``b``, long)."""
+
+    readings: torch.Tensor
+    loads: torch.Tensor
+    unknown: torch.Tensor
+    configuration: torch.Tensor
 
 
 class ShapeFromMotion(LinearCalibrator):
@@ -332,7 +346,14 @@ class ShapeFromMotion(LinearCalibrator):
             readings: ``b x p`` divided by ``reading_scale``; configuration: ``b`` (long).
             metric_weight: ``w`` (0: the least-squares directions, off the unit sphere).
         """
+        if len(self.direction_maps) == 1 and metric_weight == 0:
+            # One mass, plain least squares: u = (z - o) pinv(D S), one product over the rows.
+            effective_shape = self.direction_maps[0] @ self.shape.detach()
+            projection = torch.linalg.solve(effective_shape @ effective_shape.T, effective_shape).T
+            return readings @ projection - self.offset.detach() @ projection
         readings = readings - self.offset.detach()
+        if len(self.direction_maps) == 1:
+            return constrained_motion(readings, self.direction_maps[0] @ self.shape.detach(), metric_weight)
         directions = readings.new_zeros(len(readings), self.direction_maps.shape[1])
         for c in configuration.unique().tolist():
             rows = configuration == c
@@ -349,18 +370,31 @@ class ShapeFromMotion(LinearCalibrator):
 
     def batch_motion(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Dimensionless readings, motion (``b x n``), directions (``b x d``, zero on known rows) and the unknown-row mask."""
+        return self.scaled_motion(self.scaled_batch(batch))
+
+    def scaled_batch(self, batch: Batch) -> ScaledBatch:
+        """``batch`` in the parameters' units: readings over ``reading_scale``, loads over ``load_scale``."""
         index, readings, loads = batch
-        readings = readings / self.reading_scale
-        loads = loads / self.load_scale
-        unknown = torch.isnan(loads).any(dim=1)
+        configuration = self.row_configuration[index] if self.constrained else index
+        return ScaledBatch(readings / self.reading_scale, loads / self.load_scale, torch.isnan(loads).any(dim=1), configuration)
+
+    def scaled_motion(self, batch: ScaledBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`batch_motion` of a batch already scaled."""
+        readings, loads, unknown, configuration = batch
         motion = loads.clone()
         if not self.constrained:
             motion[unknown] = constrained_motion(readings[unknown] - self.offset.detach(), self.shape.detach(), 0.0)
             return readings, motion, readings.new_zeros(len(readings), self.rank), unknown
-        configuration = self.row_configuration[index]
+        if len(self.direction_maps) == 1:
+            # One mass: every row's direction at once (a known row's is discarded), no masked copies of a long recording.
+            directions = self.row_directions(readings, configuration) * unknown[:, None]
+            motion = torch.where(unknown[:, None], directions @ self.direction_maps[0], loads)
+            return readings, motion, directions, unknown
         directions = readings.new_zeros(len(readings), self.direction_maps.shape[1])
         directions[unknown] = self.row_directions(readings[unknown], configuration[unknown])
-        motion[unknown] = torch.einsum("bd,bdn->bn", directions[unknown], self.direction_maps[configuration[unknown]])
+        for c in configuration[unknown].unique().tolist():
+            rows = unknown & (configuration == c)
+            motion[rows] = directions[rows] @ self.direction_maps[c]
         return readings, motion, directions, unknown
 
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
@@ -376,32 +410,44 @@ class ShapeFromMotion(LinearCalibrator):
         return terms
 
     @torch.no_grad()
-    def alternation_map(self, batch: Batch) -> torch.Tensor:
+    def alternation_map(self, batch: ScaledBatch) -> torch.Tensor:
         """One round of method §5's alternation from the current ``(S, o)``; returns the new ``[S; o]`` (``(n+1) x p``).
 
         ``u_j <- normalize(least-squares direction of z_j - o)``, then ``[S; o] <- lstsq([M 1], Z)``
-        with the known loads as their rows' motion.
+        with the known loads as their rows' motion (Huber-weighted rows when ``robust``). The least
+        squares is solved about the rows' (weighted) means, which keeps the offset column from
+        making it ill-conditioned, through ``n x n`` normal equations: a few passes over the rows.
         """
-        readings, motion, _, _ = self.batch_motion(batch)
-        design = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if self.estimate_offset else motion
+        readings, motion, _, _ = self.scaled_motion(batch)
+        weights = None
         if self.robust:
             residual = (readings - motion @ self.shape - self.offset).norm(dim=1)
-            root = huber_weights(residual, self.huber_threshold).sqrt()[:, None]
-            design, readings = design * root, readings * root
-        solution = torch.linalg.lstsq(design, readings).solution
+            weights = huber_weights(residual, self.huber_threshold)[:, None]
         if not self.estimate_offset:
-            solution = torch.cat([solution, self.offset.detach()[None]])
-        return solution
+            weighted = motion if weights is None else motion * weights
+            shape = torch.linalg.solve(weighted.T @ motion, weighted.T @ readings)
+            return torch.cat([shape, self.offset.detach()[None]])
+        total = len(motion) if weights is None else weights.sum()
+        motion_mean = (motion if weights is None else motion * weights).sum(dim=0) / total
+        readings_mean = (readings if weights is None else readings * weights).sum(dim=0) / total
+        centred = motion - motion_mean
+        weighted = centred if weights is None else centred * weights
+        shape = torch.linalg.solve(weighted.T @ centred, weighted.T @ (readings - readings_mean))
+        return torch.cat([shape, (readings_mean - motion_mean @ shape)[None]])
 
     @torch.no_grad()
     def alternate(self, batch: Batch) -> None:
-        """``alternation_steps`` rounds of :meth:`alternation_map` on a full batch, Anderson-accelerated."""
+        """Up to ``alternation_steps`` rounds of :meth:`alternation_map` on a full batch, Anderson-accelerated,
+        until a round moves ``[S; o]`` by less than ``ALTERNATION_TOLERANCE`` of its norm."""
+        scaled = self.scaled_batch(batch)
         acceleration = AndersonAcceleration()
         current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
         for _ in range(self.alternation_steps):
-            current = acceleration.step(current, self.alternation_map(batch))
+            current = acceleration.step(current, self.alternation_map(scaled))
             self.shape.copy_(current[: self.rank])
             self.offset.copy_(current[self.rank])
+            if acceleration.step_norm <= ALTERNATION_TOLERANCE * float(current.norm()):
+                break
 
     def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
         """The unknown-load rows' directions, put exactly on the unit sphere, and their maps (load units)."""
