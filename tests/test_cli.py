@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -113,8 +114,14 @@ def test_unknown_command():
 
 def test_installed_wheel_finds_its_configs(tmp_path: Path):
     """Outside the checkout, the configs come from inside the installed package (method §12)."""
+    # From a copy of the sources: a checkout's stale build/ folder would hide a package left out of the wheel.
+    source = tmp_path / "source"
+    for name in ("sfmnet", "conf"):
+        shutil.copytree(REPO / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / name, source / name)
     build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(tmp_path / "dist"), str(REPO)],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(tmp_path / "dist"), str(source)],
         capture_output=True, text=True, timeout=300,
     )
     assert build.returncode == 0, build.stderr
@@ -122,6 +129,9 @@ def test_installed_wheel_finds_its_configs(tmp_path: Path):
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     assert (site / "sfmnet" / "conf" / "experiment" / "table1.yaml").is_file()
+    # Every module of the checkout ships (an editable install on the path would hide a missing package).
+    modules = {path.relative_to(REPO).as_posix() for path in (REPO / "sfmnet").rglob("*.py")}
+    assert modules <= {path.relative_to(site).as_posix() for path in (site / "sfmnet").rglob("*.py")}
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     result = sfmnet(

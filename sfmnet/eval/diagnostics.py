@@ -73,7 +73,7 @@ def calibration_diagnostics(
         known,
         direction_dims,
         uncertainty.noise_std,
-        bool(getattr(model, "robust", None)),
+        bool(model.robust),
         groups,
         model.motion_of(recording.readings[known]),
         recording.loads[known],

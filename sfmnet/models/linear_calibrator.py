@@ -42,6 +42,8 @@ class LinearCalibrator(nn.Module, ABC):
     recording: str
     # Whether the metric constraint shapes the motion (the motion figure is drawn then).
     constrained = False
+    # A robust loss that down-weights outlying rows (ShapeFromMotion's "huber"), or None.
+    robust: str | None = None
 
     def __init__(self, estimate_offset: bool) -> None:
         super().__init__()

@@ -55,7 +55,7 @@ class CalibrationTask(Task):
         diagnostics, warnings, goodness = calibration_diagnostics(
             model, recording, data.channels, loads, uncertainty, data.load_unit
         )
-        if getattr(model, "robust", None) and goodness.outlier_rows:
+        if model.robust and goodness.outlier_rows:
             # A robust fit down-weighted its outliers: its error bars describe the rows it kept.
             outlying = torch.zeros(len(loads), dtype=torch.bool)
             outlying[goodness.outlier_rows] = True
