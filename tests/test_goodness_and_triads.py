@@ -225,7 +225,7 @@ def test_imu_accelerometer_matches_the_triad_baseline(tmp_path: Path):
 
 
 def test_auto_says_when_a_long_low_snr_session_is_too_big_for_the_marginal():
-    recording, _, _ = triad_session(2, rows=12_000, snr=10, known=0)
+    recording, _, _ = triad_session(2, rows=3_000, snr=10, known=0)
     model = ShapeFromMotion()
     model.initialise(recording)
     assert model.refinement == "alternation" and "model.refinement=marginal" in model.fit_warnings[0]

@@ -62,9 +62,8 @@ def calibration_diagnostics(
     residuals = model.fitted_residuals(recording, loads)
     residual = residuals.pow(2).mean(dim=0).sqrt()
     metrics.update({f"residual_rms/{name}": float(value) for name, value in zip(channels, residual)})
-    directions, _ = model.unknown_directions(recording)
     # An unconstrained row's load is free in all n dimensions; a constrained one has d - 1 free.
-    direction_dims = directions.shape[1] + (0 if model.constrained else 1)
+    direction_dims = recording.maps.shape[1] if model.constrained else recording.rank + 1
     known = recording.known
     groups = same_load_groups(recording)
     goodness = goodness_of_fit(

@@ -85,16 +85,19 @@ class LinearCalibrator(nn.Module, ABC):
         recording: CalibrationRecording | None = None,
         uncertainty: CalibrationUncertainty | None = None,
         extra: dict[str, Any] | None = None,
+        loads: torch.Tensor | None = None,
     ) -> Calibration:
-        """The fitted calibration: matrix, offsets and spectrum, with the residual on ``recording`` and the
-        error bars of ``uncertainty`` where given; ``extra`` goes into the file beside the method and frame."""
+        """The fitted calibration: matrix, offsets and spectrum, with the residual on ``recording`` (its
+        :meth:`fitted_loads`, or ``loads`` already computed) and the error bars of ``uncertainty`` where
+        given; ``extra`` goes into the file beside the method and frame."""
+        residual_rms = float("nan") if recording is None else self.residual_rms(recording, loads)
         return Calibration(
             matrix=self.calibration_matrix().detach(),
             offset=self.physical_offset().detach(),
             channels=list(channels),
             axes=list(axes),
             singular_values=[] if self.singular_values is None else self.singular_values.tolist(),
-            residual_rms=float("nan") if recording is None else self.residual_rms(recording),
+            residual_rms=residual_rms,
             matrix_std=None if uncertainty is None else uncertainty.matrix_std,
             offset_std=None if uncertainty is None else uncertainty.offset_std,
             extra={"method": self.name, "frame": self.frame_description(), **(extra or {})},
@@ -171,14 +174,14 @@ class LinearCalibrator(nn.Module, ABC):
             observations=residual.numel(),
         )
 
-    def residual_rms(self, recording: CalibrationRecording) -> float:
+    def residual_rms(self, recording: CalibrationRecording, loads: torch.Tensor | None = None) -> float:
         """RMS of ``Z - M S - o`` per entry (raw units) with ``M`` the fitted loads: what the model leaves unexplained.
 
         The fitted loads obey the metric constraint, so the residual holds both what lies off the
         rank-n subspace and each row's departure from ``|m_j| = F``; with as many channels as
         axes (``p = n``) only the latter is left, and it is what the error bars rest on.
         """
-        return float(self.fitted_residuals(recording, self.fitted_loads(recording)).pow(2).mean().sqrt())
+        return float(self.fitted_residuals(recording, self.fitted_loads(recording) if loads is None else loads).pow(2).mean().sqrt())
 
 
 def rms_norm(readings: torch.Tensor) -> torch.Tensor:

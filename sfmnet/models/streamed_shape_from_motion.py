@@ -357,9 +357,10 @@ class StreamedShapeFromMotion(LinearCalibrator):
             unknown_weight=weight,
         )
 
-    def residual_rms(self, recording: CalibrationRecording) -> float:
-        """Over every row: the last alternation pass's residuals ``Z - M S - o`` (the fitted, constrained loads);
-        after the closed form alone, exact from the moments but only off the row space of ``S``."""
+    def residual_rms(self, recording: CalibrationRecording, loads: torch.Tensor | None = None) -> float:
+        """Over every row (not the sample ``recording``, ``loads`` unused): the last alternation pass's residuals
+        ``Z - M S - o`` (the fitted, constrained loads); after the closed form alone, exact from the moments but
+        only off the row space of ``S``."""
         if self.passes > 2:
             return float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt())
         shape = self.physical_shape()

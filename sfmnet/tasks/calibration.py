@@ -74,6 +74,7 @@ class CalibrationTask(Task):
                 "error_bars_trustworthy": goodness.trustworthy,
                 "outlier_rows": goodness.outlier_rows[:100],
             },
+            loads=loads,
         )
         metrics: dict[str, float] = {
             "residual_rms": calibration.residual_rms,
