@@ -13,27 +13,9 @@ The command line, ``python -m sfmnet train ...``, runs the same code (README).
 
 from __future__ import annotations
 
-from typing import Any
-
+from sfmnet.api import calibrate
 from sfmnet.calibration import Calibration
 from sfmnet.errors import SfmnetError
+from sfmnet.estimators import CommandLearner
 
 __all__ = ["Calibration", "CommandLearner", "SfmnetError", "calibrate"]
-
-
-def __getattr__(name: str) -> Any:
-    # The estimators load with their first use, so `import sfmnet` stays light.
-    if name == "CommandLearner":
-        from sfmnet.estimators import CommandLearner
-
-        return CommandLearner
-    raise AttributeError(f"module 'sfmnet' has no attribute '{name}'")
-
-
-def calibrate(*args: Any, **kwargs: Any) -> Calibration:
-    from sfmnet.api import calibrate as fit_calibration
-
-    return fit_calibration(*args, **kwargs)
-
-
-calibrate.__doc__ = "Calibrate a sensor from raw readings; see :func:`sfmnet.api.calibrate` (help(sfmnet.api.calibrate))."

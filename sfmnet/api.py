@@ -49,12 +49,13 @@ def calibrate(
         magnitude: the load's magnitude in load units (e.g. ``9.81`` N for 1 kg, or
             ``9.81`` m/s^2 for an accelerometer); or give ``**{"data.mass": kg}``.
         loads: ``(f, n)`` known loads, NaN on the rows whose load is unknown (at least ``n - 1``
-            known rows fix the frame); None: no known loads, the frame is arbitrary (every
-            magnitude right) and ``axes`` names the ``n`` load axes.
+            known rows fix the frame, with ``**{"data.mirror_hint": {"row": r, "axis": a, "sign": s}}``
+            for ``n - 1``); None: no known loads, the frame is arbitrary (an orthogonal transform,
+            possibly a reflection: every magnitude right) and ``axes`` names the ``n`` load axes.
         time: ``(f,)`` the rows' time in seconds (turns on static-interval detection), or None.
         channels: the ``p`` channel names (default ``z0, z1, ...``).
         axes: the ``n`` load axis names (default ``x, y, z`` for ``n <= 3``, else ``l0, l1, ...``);
-            required with ``loads=None`` unless ``n`` is 3.
+            required with ``loads=None``, where they say how many axes there are.
         run_dir: write the full run directory there (calibration.json, metrics.json, figures,
             TensorBoard); None: a temporary directory, removed afterwards.
         verbose: print the run's summary and progress as the CLI does.
@@ -72,7 +73,9 @@ def calibrate(
     readings = as_matrix(readings, "readings")
     f, p = readings.shape
     if loads is None:
-        n = len(axes) if axes is not None else 3
+        if axes is None:
+            raise SfmnetError("with no known loads (loads=None) name the n load axes, e.g. axes=['x', 'y', 'z']")
+        n = len(axes)
         known = np.full((f, n), np.nan)
     else:
         known = as_matrix(loads, "loads")
@@ -93,7 +96,7 @@ def calibrate(
         "load_columns": axes if loads is not None else [],
         "axes": None if loads is not None else axes,
         "channel_columns": channels,
-        "magnitude": None if magnitude is None else float(magnitude),
+        "magnitude": None if magnitude is None else as_number(magnitude, "magnitude"),
     }
     if time is not None:
         stamps = np.asarray(time, dtype=np.float64)
@@ -108,8 +111,16 @@ def calibrate(
     return run_calibration(cfg, table, run_dir, verbose)
 
 
+def as_number(value: Any, name: str) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise SfmnetError(f"{name} is {value!r}: give a number (load units)") from None
+
+
 def as_matrix(values: Any, name: str) -> np.ndarray:
     """``values`` as a 2-D float64 numpy array (from numpy, torch or lists), or a one-line error."""
+    values = as_real(values, name)
     if hasattr(values, "detach"):
         values = values.detach().cpu().numpy()
     try:
@@ -121,6 +132,13 @@ def as_matrix(values: Any, name: str) -> np.ndarray:
     return array
 
 
+def as_real(values: Any, name: str) -> Any:
+    """Complex input would lose its imaginary part without a word: refuse it."""
+    if np.iscomplexobj(values) or (hasattr(values, "is_complex") and values.is_complex()):
+        raise SfmnetError(f"{name} is complex: give real raw readings")
+    return values
+
+
 def calibration_config(data: Mapping[str, Any], overrides: Mapping[str, Any], verbose: bool) -> DictConfig:
     """The CLI's ``experiment=calibrate_csv`` config with ``data`` set and ``overrides`` applied."""
     groups = [f"{key}={value}" for key, value in overrides.items() if key in CONFIG_GROUPS and isinstance(value, str)]
@@ -129,10 +147,7 @@ def calibration_config(data: Mapping[str, Any], overrides: Mapping[str, Any], ve
     for key, value in overrides.items():
         if key in CONFIG_GROUPS and isinstance(value, str):
             continue
-        if isinstance(value, Mapping):
-            values.update({f"{key}.{inner}": item for inner, item in flatten(value).items()})
-        else:
-            values[key] = value
+        values[key] = value
     return compose_run_config(["experiment=calibrate_csv", *groups], values)
 
 
@@ -153,22 +168,22 @@ def compose_run_config(choices: list[str], values: Mapping[str, Any]) -> DictCon
     with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
         cfg = compose(config_name="train", overrides=choices)
     for key, value in values.items():
-        try:
-            OmegaConf.update(cfg, key, value, merge=False)
-        except OmegaConfBaseException:
-            raise SfmnetError(f"{key} is not a config key here: see python -m sfmnet train --help") from None
+        set_value(cfg, key, value)
     return cfg
 
 
-def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``{"static": {"threshold": 2}}`` -> ``{"static.threshold": 2}``."""
-    flat: dict[str, Any] = {}
-    for key, value in mapping.items():
-        if isinstance(value, Mapping) and value:
-            flat.update(flatten(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
+def set_value(cfg: DictConfig, key: str, value: Any) -> None:
+    """``cfg.<key> = value``; a mapping is set key by key where the config has a mapping there (keeping its
+    other keys), whole where it has a leaf (e.g. ``data.mirror_hint``, null by default)."""
+    node = OmegaConf.select(cfg, key, default=None)
+    if isinstance(value, Mapping) and isinstance(node, DictConfig):
+        for inner, item in value.items():
+            set_value(cfg, f"{key}.{inner}", item)
+        return
+    try:
+        OmegaConf.update(cfg, key, value, merge=False)
+    except OmegaConfBaseException:
+        raise SfmnetError(f"{key} is not a config key here: see python -m sfmnet train --help") from None
 
 
 def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, verbose: bool) -> Calibration:
@@ -177,13 +192,32 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
 
     from sfmnet.training.run import train
 
-    datamodule = instantiate(cfg.data, _partial_=True)(table=table)
+    from sfmnet.cli import user_error
+
     with contextlib.ExitStack() as stack:
         if run_dir is None:
             run_dir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="sfmnet-"))) / "run"
-        elif Path(run_dir).exists() and any(Path(run_dir).iterdir()):
-            raise SfmnetError(f"run directory {run_dir} already holds files: give a new run_dir so nothing is overwritten")
+        check_run_dir(Path(run_dir))
         if not verbose:
             stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
-        train(cfg, Path(run_dir), datamodule=datamodule)
+        try:
+            datamodule = instantiate(cfg.data, _partial_=True)(table=table)
+            train(cfg, Path(run_dir), datamodule=datamodule)
+        except Exception as error:
+            # Hydra wraps what a model or data module raises while being built: give the user's error itself.
+            cause = user_error(error)
+            if cause is None or cause is error:
+                raise
+            raise cause from None
         return Calibration.load(Path(run_dir) / "calibration.json")
+
+
+def check_run_dir(run_dir: Path) -> None:
+    """A run directory must be new or empty, and creatable (no file where a folder is needed)."""
+    if run_dir.is_dir():
+        if any(run_dir.iterdir()):
+            raise SfmnetError(f"run directory {run_dir} already holds files: give a new run_dir so nothing is overwritten")
+        return
+    for folder in [run_dir, *run_dir.parents]:
+        if folder.exists() and not folder.is_dir():
+            raise SfmnetError(f"run directory {run_dir} cannot be made: {folder} is a file; give another run_dir")

@@ -53,16 +53,19 @@ class Calibration:
     def apply(self, readings: Any) -> Any:
         """Loads of a batch of readings: ``(Z - 1 o^T) C^T``, ``f x p`` in, ``f x n`` out (load units).
 
-        A torch tensor gives a tensor (in its dtype); anything else (numpy, lists) a float64 numpy array.
+        A floating torch tensor gives a tensor in its dtype (integer counts: float64); anything else
+        (numpy, lists) a float64 numpy array.
         """
         if not isinstance(readings, torch.Tensor):
-            values = np.asarray(readings, dtype=np.float64)
-            if values.ndim != 2 or values.shape[1] != len(self.channels):
-                raise SfmnetError(
-                    f"readings of shape {values.shape}: give (f, {len(self.channels)}) raw readings, "
-                    f"channels {', '.join(self.channels)}"
-                )
-            return self.apply(torch.from_numpy(values)).numpy()
+            return self.apply(torch.from_numpy(np.asarray(readings, dtype=np.float64))).numpy()
+        if readings.ndim != 2 or readings.shape[1] != len(self.channels):
+            raise SfmnetError(
+                f"readings of shape {tuple(readings.shape)}: give (f, {len(self.channels)}) raw readings, "
+                f"channels {', '.join(self.channels)}"
+            )
+        if not readings.is_floating_point():
+            # Raw counts are integers; the loads are not.
+            readings = readings.to(torch.float64)
         matrix = self.matrix.to(readings.dtype)
         return (readings - self.offset.to(readings.dtype)) @ matrix.T
 

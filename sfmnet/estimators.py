@@ -37,6 +37,10 @@ class CommandLearner:
         n_features_in_: ``p_s``, the sensors.
         learner_: the fitted :class:`~sfmnet.models.sensorimotor_learner.SensorimotorLearner`.
 
+    The confidence is ``1 / (1 + e)``, ``e`` the sensors' misfit to the subspace: with a rank at least
+    the number of sensors every sensor vector fits and the confidence is 1 everywhere; it discriminates
+    only when the subspace is smaller than the sensor space (choose ``rank`` below ``p_s``).
+
     Example::
 
         learner = CommandLearner().fit(sensors, commands)   # (f, p_s) floats, (f, c) labels

@@ -155,3 +155,60 @@ def test_command_learner_errors_and_the_autoencoder(tmp_path: Path):
     assert (learner.predict(sensors) == commands).mean() > 0.6
     with pytest.raises(sfmnet.SfmnetError, match="sensors has 3 columns but the learner was fitted on 4"):
         learner.predict(sensors[:, :3])
+
+
+def test_integer_counts_and_wrong_widths_in_apply(tmp_path: Path):
+    _, table = read_session(write_session_path(tmp_path))
+    cal = sfmnet.calibrate(table[:, 1:7], magnitude=9.81, loads=table[:, 7:10])
+    counts = np.round(table[:5, 1:7] * 1000)
+    scaled = sfmnet.Calibration(cal.matrix / 1000, cal.offset * 1000, cal.channels, cal.axes)
+    assert torch.allclose(scaled.apply(torch.from_numpy(counts.astype(np.int64))), torch.from_numpy(scaled.apply(counts)))
+    with pytest.raises(sfmnet.SfmnetError, match=r"give \(f, 6\) raw readings"):
+        cal.apply(torch.zeros(4, 5, dtype=torch.float64))
+
+
+def test_mirror_hint_from_python_with_n_minus_one_known_loads(tmp_path: Path):
+    """Two known loads in 3-D leave a mirror image; the hint, given as a mapping, picks the right one."""
+    _, table = read_session(write_session_path(tmp_path))
+    readings, loads = table[:, 1:7], table[:, 7:10]
+    reference = sfmnet.calibrate(readings, magnitude=9.81, loads=loads, axes=["fx", "fy", "fz"])
+    two_known = loads.copy()
+    two_known[np.flatnonzero(np.isfinite(loads).all(axis=1))[-1]] = np.nan
+    row = int(np.flatnonzero(np.isnan(two_known).any(axis=1))[0])
+    # The hint: roughly which way that row's load pointed (here from the three-load calibration).
+    load = reference.apply(readings[row : row + 1])[0]
+    axis = int(np.argmax(np.abs(load)))
+    hint = {"row": row, "axis": ["fx", "fy", "fz"][axis], "sign": int(np.sign(load[axis]))}
+    with pytest.raises(sfmnet.SfmnetError, match="mirror"):
+        sfmnet.calibrate(readings, magnitude=9.81, loads=two_known, axes=["fx", "fy", "fz"])
+    cal = sfmnet.calibrate(readings, magnitude=9.81, loads=two_known, axes=["fx", "fy", "fz"], data={"mirror_hint": hint})
+    assert (cal.matrix - reference.matrix).norm() < 0.01 * reference.matrix.norm()
+    flipped = {**hint, "sign": -hint["sign"]}
+    mirrored = sfmnet.calibrate(readings, magnitude=9.81, loads=two_known, axes=["fx", "fy", "fz"], data={"mirror_hint": flipped})
+    assert (mirrored.matrix - reference.matrix).norm() > 0.5 * reference.matrix.norm()
+
+
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        ({"model.refinement": "bogus"}, r"model.refinement is 'bogus'"),
+        ({"trainer": {"max_epochs": -1}}, r"trainer.max_epochs is -1: give a whole number >= 0"),
+        ({"magnitude": "abc"}, r"magnitude is 'abc': give a number"),
+        ({"readings": np.ones((99, 6)) * 1j}, r"readings is complex"),
+        ({"loads": None}, r"name the n load axes"),
+    ],
+)
+def test_more_bad_input_is_one_line(tmp_path: Path, arguments: dict, message: str):
+    _, table = read_session(write_session_path(tmp_path))
+    given = {"readings": table[:, 1:7], "magnitude": 9.81, "loads": table[:, 7:10], **arguments}
+    with pytest.raises(sfmnet.SfmnetError, match=message):
+        sfmnet.calibrate(**given)
+
+
+def test_run_dir_that_is_a_file_is_refused(tmp_path: Path):
+    _, table = read_session(write_session_path(tmp_path))
+    (tmp_path / "file").write_text("mine")
+    for run_dir in (tmp_path / "file", tmp_path / "file" / "run"):
+        with pytest.raises(sfmnet.SfmnetError, match="is a file"):
+            sfmnet.calibrate(table[:, 1:7], magnitude=9.81, loads=table[:, 7:10], run_dir=run_dir)
+    assert (tmp_path / "file").read_text() == "mine"

@@ -71,6 +71,11 @@ def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | No
     """
     run_dir = Path(run_dir)
     refuse_existing_results(run_dir)
+    max_epochs = cfg.trainer.get("max_epochs")
+    if max_epochs is not None and (isinstance(max_epochs, bool) or not isinstance(max_epochs, int) or max_epochs < 0):
+        raise SfmnetError(
+            f"trainer.max_epochs is {max_epochs!r}: give a whole number >= 0 (Lightning's -1, no limit, never ends a fit)"
+        )
     quiet_lightning()
     torch.set_num_threads(cfg.threads)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
