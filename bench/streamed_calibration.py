@@ -71,22 +71,24 @@ def calibrate(path: Path, run_dir: Path, timeout: float, *overrides: str) -> dic
         f"data.columns=[{','.join(COLUMNS)}]", f"data.magnitude={MAGNITUDE}", f"hydra.run.dir={run_dir}",
         "trainer.enable_progress_bar=false", *overrides,
     ]
-    started = time.perf_counter()
-    try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
-    except subprocess.TimeoutExpired:
-        return {"skipped": f"over {timeout:g} s"}
-    seconds = time.perf_counter() - started
-    if done.returncode != 0:
-        return {"skipped": (done.stderr.strip().splitlines() or ["failed"])[-2][:80]}
-    metrics = json.loads((run_dir / "metrics.json").read_text())
-    matrix = np.array(json.loads((run_dir / "calibration.json").read_text())["matrix"])
-    return {"seconds": seconds, "peak_mb": int(done.stderr.strip().splitlines()[-1]) / 1024, "passes": metrics["epochs"], "matrix": matrix}
+    result = timed(command, timeout)
+    if "skipped" not in result:
+        result["passes"] = json.loads((run_dir / "metrics.json").read_text())["epochs"]
+        result["matrix"] = np.array(json.loads((run_dir / "calibration.json").read_text())["matrix"])
+    return result
 
 
 def numpy_reference(path: Path, timeout: float) -> dict:
     """bench/numpy_reference.py on the session, in its own process: seconds, peak memory, matrix."""
     command = ["/usr/bin/time", "-f", "%M", sys.executable, str(Path(__file__).with_name("numpy_reference.py")), str(path), str(MAGNITUDE)]
+    result = timed(command, timeout)
+    if "skipped" not in result:
+        result["matrix"] = np.array(json.loads(result.pop("stdout"))["matrix"])
+    return result
+
+
+def timed(command: list[str], timeout: float) -> dict:
+    """Run ``command`` (under ``/usr/bin/time -f %M``): its seconds, peak memory (MB) and stdout, or why it was skipped."""
     started = time.perf_counter()
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
@@ -95,8 +97,7 @@ def numpy_reference(path: Path, timeout: float) -> dict:
     seconds = time.perf_counter() - started
     if done.returncode != 0:
         return {"skipped": (done.stderr.strip().splitlines() or ["failed"])[-2][:80]}
-    result = json.loads(done.stdout)
-    return {"seconds": seconds, "peak_mb": int(done.stderr.strip().splitlines()[-1]) / 1024, "matrix": np.array(result["matrix"])}
+    return {"seconds": seconds, "peak_mb": int(done.stderr.strip().splitlines()[-1]) / 1024, "stdout": done.stdout}
 
 
 def relative(a: np.ndarray, b: np.ndarray) -> float:

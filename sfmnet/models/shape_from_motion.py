@@ -434,7 +434,8 @@ class ShapeFromMotion(LinearCalibrator):
         readings_mean = (readings if weights is None else readings * weights).sum(dim=0) / total
         centred = motion - motion_mean
         weighted = centred if weights is None else centred * weights
-        shape = torch.linalg.solve(weighted.T @ centred, weighted.T @ (readings - readings_mean))
+        # The weighted centred motion sums to zero, so the readings need no centring of their own.
+        shape = torch.linalg.solve(weighted.T @ centred, weighted.T @ readings)
         return torch.cat([shape, (readings_mean - motion_mean @ shape)[None]])
 
     @torch.no_grad()

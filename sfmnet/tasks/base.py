@@ -16,7 +16,7 @@ import lightning as L
 import torch
 from hydra.utils import instantiate
 from lightning.pytorch.loggers import Logger
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from sfmnet.errors import SfmnetError
 from sfmnet.models.contracts import Learner
@@ -45,12 +45,13 @@ class FittedMethod:
 
 @dataclass
 class MethodResult:
-    """What one fitted method leaves behind: its flat metrics, warnings, and the task's own result object."""
+    """What one fitted method leaves behind: its flat metrics, warnings, the task's own result object and the model."""
 
     name: str
     metrics: dict[str, float]
     warnings: list[str] = field(default_factory=list)
     result: Any = None
+    model: Learner | None = None
 
 
 class Task(ABC):
@@ -68,7 +69,7 @@ class Task(ABC):
     def __init__(self, cfg: DictConfig) -> None:
         self.cfg = cfg
         for key, why in self.ignores.items():
-            if _select(cfg, key):
+            if OmegaConf.select(cfg, key):
                 raise SfmnetError(f"{key} is set but a {self.kind} run {why}: drop {key}")
 
     def models(self) -> dict[str, Learner]:
@@ -96,10 +97,3 @@ class Task(ABC):
     @abstractmethod
     def summary(self, results: dict[str, MethodResult], data: Any) -> list[str]:
         """The console lines under "run directory: ...", one per method and per warning."""
-
-
-def _select(cfg: DictConfig, key: str) -> Any:
-    node: Any = cfg
-    for part in key.split("."):
-        node = node.get(part) if node is not None else None
-    return node

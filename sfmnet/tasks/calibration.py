@@ -38,12 +38,6 @@ class CalibrationTask(Task):
 
     kind = "calibration"
 
-    def models(self) -> dict[str, LinearCalibrator]:
-        models = super().models()
-        # Leave-one-group-out holds out the groups of the main method's recording.
-        self.main_recording = next(iter(models.values())).recording
-        return models
-
     def true_matrix(self, data: CalibrationData) -> torch.Tensor | None:
         return None if data.truth is None else data.truth.matrix
 
@@ -100,15 +94,17 @@ class CalibrationTask(Task):
             metrics.update({f"test/{key}": value for key, value in errors.items()})
         if fitted.trainer.is_global_zero:
             draw_figures(fitted, recording, data.load_unit)
-        return MethodResult(fitted.name, metrics, warnings, calibration)
+        return MethodResult(fitted.name, metrics, warnings, calibration, model)
 
     def after_fits(self, data: CalibrationData, results: dict[str, MethodResult], run_dir: Path) -> None:
         """With ``eval.leave_one_group_out``: every method refitted per held-out group (``lopo/...``), a CSV and a figure."""
         if not self.cfg.eval.get("leave_one_group_out"):
             return
-        model_cfgs = {next(iter(results)): self.cfg.model, **self.cfg.get("baselines", {})}
+        main = next(iter(results.values()))
+        model_cfgs = {main.name: self.cfg.model, **self.cfg.get("baselines", {})}
         progress = bool(self.cfg.trainer.get("enable_progress_bar", True))
-        folds = leave_one_group_out(self.cfg, data, model_cfgs, self.main_recording, progress)
+        # The groups held out are those of the main method's recording.
+        folds = leave_one_group_out(self.cfg, data, model_cfgs, main.model.recording, progress)
         for name, summary in summarise_folds(folds).items():
             results[name].metrics.update({f"lopo/{key}": value for key, value in summary.items()})
         write_folds(folds, run_dir / "leave_one_group_out.csv")

@@ -40,16 +40,16 @@ class PcaTask(Task):
             "processes": float(fitted.trainer.world_size),
             "explained_variance_ratio": explained,
         }
-        return MethodResult(fitted.name, metrics, result=model)
+        return MethodResult(fitted.name, metrics, model=model)
 
     def write(self, results: dict[str, MethodResult], data: RowData, run_dir: Path) -> dict[str, float]:
         main = next(iter(results.values()))
-        save_pca(main.result, data.channels, run_dir / "pca.npz")
+        save_pca(main.model, data.channels, run_dir / "pca.npz")
         return dict(main.metrics)
 
     def summary(self, results: dict[str, MethodResult], data: RowData) -> list[str]:
         main = next(iter(results.values()))
-        m, model = main.metrics, main.result
+        m, model = main.metrics, main.model
         return [
             f"  {main.name}: {int(m['rows'])} rows x {len(data.channels)} columns in {m['fit_seconds']:.2f} s on "
             f"{int(m['processes'])} process(es); {model.rank} components explain "

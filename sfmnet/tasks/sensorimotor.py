@@ -61,24 +61,20 @@ class SensorimotorTask(Task):
         metrics.update(monitored)
         if fitted.trainer.is_global_zero:
             draw_figures(fitted, data, readings[0])
-        return MethodResult(fitted.name, metrics, result=readings)
+        return MethodResult(fitted.name, metrics, result=readings, model=model)
 
     def write(self, results: dict[str, MethodResult], data: SensorimotorData, run_dir: Path) -> dict[str, float]:
         main, *baselines = results.values()
-        save_learner(self.fitted_models[main.name], data, run_dir / "learner.npz")
+        save_learner(main.model, data, run_dir / "learner.npz")
         write_predictions(data, main.result, run_dir / "predictions.csv")
         metrics = dict(main.metrics)
         for result in baselines:
-            save_learner(self.fitted_models[result.name], data, run_dir / "baselines" / result.name / "learner.npz")
+            save_learner(result.model, data, run_dir / "baselines" / result.name / "learner.npz")
             metrics.update({f"{result.name}/{key}": value for key, value in result.metrics.items()})
         return metrics
 
     def summary(self, results: dict[str, MethodResult], data: SensorimotorData) -> list[str]:
         return [headline(name, result.metrics, data) for name, result in results.items()]
-
-    def models(self) -> dict[str, SensorimotorLearner]:
-        self.fitted_models = super().models()
-        return self.fitted_models
 
 
 def draw_figures(fitted: FittedMethod, data: SensorimotorData, reading: CommandReading) -> None:

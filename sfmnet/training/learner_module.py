@@ -36,8 +36,7 @@ class LearnerModule(L.LightningModule):
         self.model = model
         self.optimizer_factory = optimizer
         self.true_matrix = true_matrix
-        self.mode = model.fit_mode()
-        self.automatic_optimization = self.mode is FitMode.STEPS
+        self.read_mode()
 
     @property
     def recording(self) -> Any:
@@ -53,6 +52,10 @@ class LearnerModule(L.LightningModule):
         if not self.model.is_initialised:
             self.model.initialise(self.recording)
         # A model may choose its refinement from the data ("auto"): read it again once initialised.
+        self.read_mode()
+
+    def read_mode(self) -> None:
+        """The model's fit mode; the optimiser for models fitted by steps, manual steps for the others."""
         self.mode = self.model.fit_mode()
         self.automatic_optimization = self.mode is FitMode.STEPS
 
