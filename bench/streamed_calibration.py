@@ -14,9 +14,9 @@ memory is its own:
   by less than 1e-9);
 - ``streamed x2``: the same on two processes (``trainer.devices=2 trainer.strategy=ddp``);
 - ``in memory``: ``experiment=calibrate_csv model.refinement=alternation trainer.max_epochs=1``
-  (the closed form, then Anderson-accelerated alternation rounds on the whole array to a 1e-10 step);
+  (the closed form, then Anderson-accelerated alternation rounds on the whole array to a 1e-9 step);
 - ``numpy``: ``bench/numpy_reference.py``, the same algorithm in plain numpy (closed form, plain
-  alternation to a 1e-10 step, the matrix's Cramer-Rao error bars; no checks, figures or files).
+  Anderson-accelerated alternation to a 1e-9 step, the matrix's Cramer-Rao error bars; no checks, figures or files).
 
 Seconds are the run start to finish (Python start, reading, fitting, error bars, figures);
 ratios are each fit's speed relative to the streamed one measured in the same run

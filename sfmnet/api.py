@@ -26,14 +26,18 @@ CONFIG_GROUPS = ("model", "optimizer", "trainer")
 TIME_COLUMN = "time"
 
 
+def default_axis_names(n: int) -> list[str]:
+    return ["x", "y", "z"][:n] if n <= 3 else [f"l{i}" for i in range(n)]
+
+
 def calibrate(
     readings: Any,
     magnitude: float | None = None,
     loads: Any = None,
     time: Any = None,
     *,
-    channels: Sequence[str] | None = None,
-    axes: Sequence[str] | None = None,
+    channels: Sequence[str] | int | None = None,
+    axes: Sequence[str] | int | None = None,
     run_dir: str | Path | None = None,
     verbose: bool = False,
     **config_overrides: Any,
@@ -53,8 +57,8 @@ def calibrate(
             for ``n - 1``); None: no known loads, the frame is arbitrary (an orthogonal transform,
             possibly a reflection: every magnitude right) and ``axes`` names the ``n`` load axes.
         time: ``(f,)`` the rows' time in seconds (turns on static-interval detection), or None.
-        channels: the ``p`` channel names (default ``z0, z1, ...``).
-        axes: the ``n`` load axis names (default ``x, y, z`` for ``n <= 3``, else ``l0, l1, ...``);
+        channels: the ``p`` channel names (default ``z0, z1, ...``), or their number.
+        axes: the ``n`` load axis names, or their number (default ``x, y, z`` for ``n <= 3``, else ``l0, l1, ...``);
             required with ``loads=None``, where they say how many axes there are.
         run_dir: write the full run directory there (calibration.json, metrics.json, figures,
             TensorBoard); None: a temporary directory, removed afterwards.
@@ -72,6 +76,10 @@ def calibrate(
     """
     readings = as_matrix(readings, "readings")
     f, p = readings.shape
+    if isinstance(axes, int) and not isinstance(axes, bool):
+        axes = default_axis_names(axes)
+    if isinstance(channels, int) and not isinstance(channels, bool):
+        channels = [f"z{i}" for i in range(channels)]
     if loads is None:
         if axes is None:
             raise SfmnetError("with no known loads (loads=None) name the n load axes, e.g. axes=['x', 'y', 'z']")
@@ -83,7 +91,7 @@ def calibrate(
             raise SfmnetError(f"loads has {len(known)} rows but readings has {f}: give one load row (NaN if unknown) per reading")
         n = known.shape[1]
     channels = list(channels) if channels is not None else [f"z{i}" for i in range(p)]
-    axes = list(axes) if axes is not None else (["x", "y", "z"][:n] if n <= 3 else [f"l{i}" for i in range(n)])
+    axes = list(axes) if axes is not None else default_axis_names(n)
     if len(channels) != p or len(axes) != n or len({*channels, *axes, TIME_COLUMN}) != p + n + 1:
         raise SfmnetError(
             f"give {p} distinct channel names and {n} distinct axis names (not '{TIME_COLUMN}'), "

@@ -113,3 +113,44 @@ def check_agreement(placed: torch.Tensor, known_loads: torch.Tensor, rotation: t
             "signs and rows"
         )
     return rotation
+
+
+def skew_generators(n: int, dtype: torch.dtype) -> torch.Tensor:
+    """The ``n (n - 1) / 2`` generators ``E_a`` of rotations in ``n`` dimensions, ``a x n x n``."""
+    rows, cols = torch.triu_indices(n, n, offset=1)
+    generators = torch.zeros(len(rows), n, n, dtype=dtype)
+    generators[torch.arange(len(rows)), rows, cols] = 1.0
+    generators[torch.arange(len(rows)), cols, rows] = -1.0
+    return generators
+
+
+@torch.no_grad()
+def known_load_rotation(known_readings: torch.Tensor, known_loads: torch.Tensor, shape: torch.Tensor, iterations: int = 20) -> torch.Tensor:
+    """The rotation ``R`` minimising ``sum_k |y_k - l_k R S|^2`` over the known-load rows (method §5).
+
+    With one mass and free directions the unknown rows' cost does not change when ``S`` turns
+    into ``R S`` (their directions turn with it), so only the few known loads hold the frame and
+    the alternation turns it towards them by tiny steps (a slow mode of its iteration). This
+    minimises over the turn directly: Gauss-Newton on ``R = exp(sum_a w_a E_a) R_0`` from
+    ``R_0 = I``. The sum is not Procrustes' unless ``S S^T`` is a multiple of ``I``.
+
+    Args:
+        known_readings: ``k x p`` readings minus offsets ``y_k``; known_loads: ``k x n`` loads
+            ``l_k``; shape: ``S``, ``n x p``.
+
+    Returns:
+        ``R``, ``n x n``.
+    """
+    n = shape.shape[0]
+    generators = skew_generators(n, shape.dtype)
+    rotation = torch.eye(n, dtype=shape.dtype)
+    for _ in range(iterations):
+        turned = rotation @ shape
+        residual = (known_readings - known_loads @ turned).flatten()
+        # d(l R S)/dw_a at w = 0 is l E_a R S.
+        jacobian = torch.stack([(known_loads @ generator @ turned).flatten() for generator in generators], dim=1)
+        step = torch.linalg.lstsq(jacobian, residual[:, None]).solution[:, 0]
+        rotation = torch.linalg.matrix_exp(torch.einsum("a,aij->ij", step, generators)) @ rotation
+        if float(step.norm()) <= 1e-15:
+            break
+    return rotation

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch
 
+UNIT_MOTION_CHUNK_ROWS = 65_536
+
 
 @torch.no_grad()
 def constrained_motion(
@@ -55,3 +57,58 @@ def constrained_motion(
         high = torch.where(below, high, middle)
     s = (low + high) / 2
     return (coefficients / (eigenvalues + s[:, None])) @ basis.T
+
+
+@torch.no_grad()
+def unit_motion(readings: torch.Tensor, shape: torch.Tensor, iterations: int = 100) -> torch.Tensor:
+    """Per row, the global ``argmin_{|u| = 1} |z - u S|^2``: the direction that explains the readings best.
+
+    The hard metric constraint (method §5), the limit of :func:`constrained_motion` as ``w``
+    grows. Normalising the least-squares projection ``z pinv(S)`` gives the same direction only
+    when ``S S^T`` is a multiple of ``I``; for a sensor whose axes differ in gain it leans
+    towards the weak axes, which inflates residuals and biases ``S``. Stationarity reads
+    ``(G + s I) u = c`` with ``G = S S^T``, ``c = S z^T`` and ``s > -g_min`` chosen so that
+    ``|u| = 1``; in the eigenbasis of ``G``
+
+        sum_i c_i^2 / (g_i + s)^2 = 1,
+
+    the trust-region boundary equation, solved by Newton's method on ``1 - 1/|u(s)|`` (concave
+    and nearly linear in ``s``, so from the root's left it climbs without overshooting), each row
+    stepped until it has converged.
+
+    Args:
+        readings: ``b x p`` (offsets removed).
+        shape: ``n x p``.
+        iterations: at most this many Newton steps per row.
+
+    Returns:
+        ``b x n``, unit rows.
+    """
+    eigenvalues, basis = torch.linalg.eigh(shape @ shape.T)
+    if len(readings) > UNIT_MOTION_CHUNK_ROWS:
+        # In chunks, so the solve's temporaries stay a few MB however long the recording.
+        chunks = readings.split(UNIT_MOTION_CHUNK_ROWS)
+        return torch.cat([unit_motion(chunk, shape, iterations) for chunk in chunks])
+    coefficients = readings @ shape.T @ basis
+    # |u(s)| >= |c| / (g_max + s) and >= |c_min| / (g_min + s): left of the root, so a floor for every step.
+    low = torch.maximum(coefficients.norm(dim=1) - eigenvalues[-1], coefficients[:, 0].abs() - eigenvalues[0])
+    # Noise-free readings have their root at s = 0; a step from its right lands left of the root.
+    s = low.clamp(min=0.0)
+    # The rows still stepping, compacted as they converge (most take three or four steps); the
+    # squares are stored n x b, where sums over the n axes are whole-vector adds.
+    rows, squares, s_rows, low_rows = torch.arange(len(s), device=s.device), coefficients.T.pow(2), s.clone(), low
+    for _ in range(iterations):
+        inverse = (eigenvalues[:, None] + s_rows).reciprocal_()
+        terms = squares * inverse * inverse
+        norm2 = terms.sum(dim=0)
+        step = (norm2.sqrt() - 1) * norm2 / terms.mul_(inverse).sum(dim=0)
+        s_rows = torch.maximum(s_rows + step, low_rows)
+        # A step moves u by about step / (g_min + s); Newton is quadratic once that is small.
+        going = step.abs() > 1e-13 * (s_rows + eigenvalues[0])
+        s[rows[~going]] = s_rows[~going]
+        rows, squares, s_rows, low_rows = rows[going], squares[:, going], s_rows[going], low_rows[going]
+        if len(rows) == 0:
+            break
+    s[rows] = s_rows
+    directions = (coefficients / (eigenvalues + s[:, None])) @ basis.T
+    return directions / directions.norm(dim=1, keepdim=True)

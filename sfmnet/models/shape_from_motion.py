@@ -19,9 +19,9 @@ from sfmnet.linalg.factorisation import (
     require_coverage,
     truncated_svd_factors,
 )
-from sfmnet.linalg.frame import frame_rotation
+from sfmnet.linalg.frame import frame_rotation, known_load_rotation
 from sfmnet.linalg.least_squares import least_squares_shape
-from sfmnet.linalg.motion import constrained_motion
+from sfmnet.linalg.motion import constrained_motion, unit_motion
 from sfmnet.models.linear_calibrator import (
     Batch,
     LinearCalibrator,
@@ -45,9 +45,9 @@ MARGINAL_BELOW_SNR = 50.0
 # 500 rows 12 s, 2,000 rows 30 s; a hostile tester's 4,400-row stream with its motion rows left in ran
 # for over 6 minutes). 2,500 rows on the sphere, 10,000 on the circle.
 MARGINAL_MAX_CELLS = 5e6
-# Relative change of [S; o] in one alternation round at which the alternation has converged
-# (the streamed fit stops at 1e-9; below 1e-10 rounds only creep along the weakly held frame).
-ALTERNATION_TOLERANCE = 1e-10
+# Relative change of [S; o] in one alternation round at which the alternation has converged, as
+# in the streamed fit: below ~1e-9 rounds only creep along the frame, which a few known loads hold weakly.
+ALTERNATION_TOLERANCE = 1e-9
 # Smoothed EM steps of the directions' distribution per training step of the marginal refinement.
 PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
@@ -90,8 +90,8 @@ class ShapeFromMotion(LinearCalibrator):
 
     Refinement, in the trainer's steps:
 
-    - ``"alternation"``: method §5's alternation, ``u_j <- normalize(z_j pinv(D S))``
-      then ``[S; o] <- lstsq([M 1], Z)`` (:meth:`alternate`), the motion always exactly on
+    - ``"alternation"``: method §5's alternation, ``u_j <- argmin_{|u|=1} |z_j - o - u D S|``
+      (:func:`unit_motion`) then ``[S; o] <- lstsq([M 1], Z)`` (:meth:`alternate`), the motion always exactly on
       the constraint. At low SNR it stays far closer to the Cramer-Rao bound than the exact
       penalised minimum, whose per-sample directions are incidental parameters that bias
       ``S`` (README, "Error against the Cramer-Rao bound").
@@ -364,11 +364,17 @@ class ShapeFromMotion(LinearCalibrator):
         return directions
 
     def row_directions(self, readings: torch.Tensor, configuration: torch.Tensor) -> torch.Tensor:
-        """Unknown rows' directions as the refinement uses them: normalised projections (alternation) or the penalty's argmin."""
+        """Unknown rows' directions as the refinement uses them: on the unit sphere (alternation) or the penalty's argmin."""
         if self.refinement == "penalty":
             return self.directions(readings, configuration, self.metric_weight)
-        directions = self.directions(readings, configuration, 0.0)
-        return directions / directions.norm(dim=1, keepdim=True)
+        readings = readings - self.offset.detach()
+        if len(self.direction_maps) == 1:
+            return unit_motion(readings, self.direction_maps[0] @ self.shape.detach())
+        directions = readings.new_zeros(len(readings), self.direction_maps.shape[1])
+        for c in configuration.unique().tolist():
+            rows = configuration == c
+            directions[rows] = unit_motion(readings[rows], self.direction_maps[c] @ self.shape.detach())
+        return directions
 
     def batch_motion(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Dimensionless readings, motion (``b x n``), directions (``b x d``, zero on known rows) and the unknown-row mask."""
@@ -415,12 +421,14 @@ class ShapeFromMotion(LinearCalibrator):
     def alternation_map(self, batch: ScaledBatch) -> torch.Tensor:
         """One round of method §5's alternation from the current ``(S, o)``; returns the new ``[S; o]`` (``(n+1) x p``).
 
-        ``u_j <- normalize(least-squares direction of z_j - o)``, then ``[S; o] <- lstsq([M 1], Z)``
-        with the known loads as their rows' motion (Huber-weighted rows when ``robust``). The least
+        ``u_j <- the unit direction nearest z_j - o`` (:func:`unit_motion`), then ``[S; o] <- lstsq([M 1], Z)``
+        with the known loads as their rows' motion (Huber-weighted rows when ``robust``), then the
+        frame turned to fit the known loads (:func:`known_load_rotation`: only they hold it, so the
+        plain rounds would turn it by tiny steps). The least
         squares is solved about the rows' (weighted) means, which keeps the offset column from
         making it ill-conditioned, through ``n x n`` normal equations: a few passes over the rows.
         """
-        readings, motion, _, _ = self.scaled_motion(batch)
+        readings, motion, _, unknown = self.scaled_motion(batch)
         weights = None
         if self.robust:
             residual = (readings - motion @ self.shape - self.offset).norm(dim=1)
@@ -436,7 +444,10 @@ class ShapeFromMotion(LinearCalibrator):
         weighted = centred if weights is None else centred * weights
         # The weighted centred motion sums to zero, so the readings need no centring of their own.
         shape = torch.linalg.solve(weighted.T @ centred, weighted.T @ readings)
-        return torch.cat([shape, (readings_mean - motion_mean @ shape)[None]])
+        offset = readings_mean - motion_mean @ shape
+        if self.constrained and len(self.direction_maps) == 1 and not bool(unknown.all()):
+            shape = known_load_rotation(readings[~unknown] - offset, motion[~unknown], shape) @ shape
+        return torch.cat([shape, offset[None]])
 
     @torch.no_grad()
     def alternate(self, batch: Batch) -> None:

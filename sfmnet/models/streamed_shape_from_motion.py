@@ -18,7 +18,8 @@ from sfmnet.linalg.factorisation import (
     metric_unknowns,
     require_coverage,
 )
-from sfmnet.linalg.frame import frame_rotation
+from sfmnet.linalg.frame import frame_rotation, known_load_rotation
+from sfmnet.linalg.motion import unit_motion
 from sfmnet.linalg.moments import (
     Moments,
     cross_product,
@@ -47,10 +48,11 @@ class StreamedShapeFromMotion(LinearCalibrator):
        subspace: ``Q`` and the ellipsoid's centre give ``S`` and ``o``, turned into the known
        loads' frame by Procrustes (method §3). This is the paper's closed form.
     3. Each further pass is one alternation round (``refinement="alternation"``):
-       ``u_j = normalize(load of z_j)``, then ``[S; o] = solve(A, B)`` with ``A = [M 1]^T [M 1]``
-       and ``B = [M 1]^T Z`` summed over the pass, known loads as their rows' motion;
-       Anderson-accelerated across passes, stopped once a round moves the parameters by less
-       than ``tolerance`` (relative). The fixed point is the in-memory alternation's.
+       ``u_j = argmin_{|u|=1} |z_j - o - F u S|`` (:func:`unit_motion`), then
+       ``[S; o] = solve(A, B)`` with ``A = [M 1]^T [M 1]`` and ``B = [M 1]^T Z`` summed over the pass, known loads as their rows' motion, then the
+       frame turned to fit the known loads (:func:`known_load_rotation`); Anderson-accelerated
+       across passes, stopped once a round moves the parameters by less than ``tolerance``
+       (relative). The fixed point is the in-memory alternation's.
 
     Every sum is over each row once, in float64, and reduced across processes by the
     trainer's strategy, so one or several processes give the same numbers. Memory is
@@ -160,16 +162,13 @@ class StreamedShapeFromMotion(LinearCalibrator):
     def accumulate_alternation(self, block: RowBlock) -> None:
         centred = block.readings - (self.physical_offset() - self.data.shift)
         known = torch.isfinite(block.loads).all(dim=1)
-        motion = self.motion_of_centred(centred)
-        motion = self.data.magnitude * motion / motion.norm(dim=1, keepdim=True)
+        magnitude = self.data.magnitude
+        motion = magnitude * unit_motion(centred, magnitude * self.physical_shape())
         motion[known] = block.loads[known]
         self.residual_squares += (centred - motion @ self.physical_shape()).pow(2).sum(dim=0)
         design = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if self.estimate_offset else motion
         self.design_gram += cross_product(design)
         self.design_readings += cross_product(design, block.readings if self.estimate_offset else block.readings + self.data.shift)
-
-    def motion_of_centred(self, centred: torch.Tensor) -> torch.Tensor:
-        return centred @ self.calibration_matrix().T
 
     def reduce(self, strategy) -> None:
         """Sum this pass's statistics over processes (each row was read by exactly one)."""
@@ -279,7 +278,10 @@ class StreamedShapeFromMotion(LinearCalibrator):
         """One alternation round from this pass's sums, Anderson-mixed with the rounds before."""
         solution = torch.linalg.solve(self.design_gram, self.design_readings)
         offset = solution[self.rank] + self.data.shift if self.estimate_offset else torch.zeros_like(self.data.shift)
-        mapped = self.dimensionless(solution[: self.rank], offset)
+        shape = solution[: self.rank]
+        if len(self.known):
+            shape = known_load_rotation(self.known_readings() - offset, self.known_loads(), shape) @ shape
+        mapped = self.dimensionless(shape, offset)
         current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
         mixed = self.acceleration.step(current, mapped)
         self.shape.copy_(mixed[: self.rank])
@@ -334,9 +336,11 @@ class StreamedShapeFromMotion(LinearCalibrator):
         )
 
     def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
-        loads = self.motion_of(recording.readings[~recording.known])
+        magnitude = self.data.magnitude
+        centred = recording.readings[~recording.known] - self.physical_offset()
+        directions = unit_motion(centred, magnitude * self.physical_shape())
         n = self.rank
-        return loads / loads.norm(dim=1, keepdim=True), self.data.magnitude * torch.eye(n, dtype=loads.dtype).expand(len(loads), n, n)
+        return directions, magnitude * torch.eye(n, dtype=directions.dtype).expand(len(directions), n, n)
 
     def uncertainty(self, recording: CalibrationRecording, loads: torch.Tensor) -> CalibrationUncertainty:
         """Cramer-Rao standard errors with the sampled rows standing for every unknown-load row.
