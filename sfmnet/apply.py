@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import torch
 
 from sfmnet.calibration import Calibration
-from sfmnet.readers.table_file import check_finite, read_table
+from sfmnet.readers.delimited import open_delimited
+from sfmnet.readers.table_file import WHITESPACE_SUFFIXES, check_finite, read_table
 from sfmnet.errors import SfmnetError
 from sfmnet.io import write_csv_atomic
 
@@ -42,7 +42,9 @@ def apply_calibration(calibration_path: Path, input_path: Path, output_path: Pat
     if output_path.resolve() == input_path.resolve():
         raise SfmnetError("output= is the input file: write the loads to a new file")
     calibration = Calibration.load(calibration_path)
-    table = read_table(input_path)
+    if input_path.suffix in (".npy", ".npz", *WHITESPACE_SUFFIXES):
+        raise SfmnetError(f"input={input_path} is not a CSV: apply copies the input's cells, so give it a CSV with a header row")
+    table = read_table(input_path, option="input=")
     missing = [name for name in calibration.channels if name not in table.columns and name not in table.text]
     if missing:
         raise SfmnetError(
@@ -53,13 +55,12 @@ def apply_calibration(calibration_path: Path, input_path: Path, output_path: Pat
     check_finite(readings, calibration.channels, input_path, "reading")
     loads = calibration.apply(torch.from_numpy(readings)).numpy()
 
-    with input_path.open(newline="") as stream:
-        rows = [row for row in csv.reader(stream) if any(cell.strip() for cell in row)]
-    header = rows[0]
+    # The same rows as the table's (the same reader skips the same empty rows).
+    header, rows = open_delimited(input_path).header_and_rows()
     write_csv_atomic(
         output_path,
         [*header, *output_names(calibration.axes, header)],
-        ([*row, *(f"{value:.9g}" for value in load)] for row, load in zip(rows[1:], loads)),
+        ([*cells, *(f"{value:.9g}" for value in load)] for (_, cells), load in zip(rows, loads)),
     )
     return len(loads)
 

@@ -12,6 +12,7 @@ import torch
 
 from sfmnet.errors import SfmnetError
 from sfmnet.io import write_json_atomic
+from sfmnet.readers.input_file import special_kind
 
 
 def calibration_matrix(shape: torch.Tensor) -> torch.Tensor:
@@ -99,6 +100,9 @@ class Calibration:
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
         """Read a calibration file, checking its shape; a bad file raises :class:`SfmnetError`."""
+        kind = special_kind(Path(path))
+        if kind:
+            raise SfmnetError(f"calibration file {path} is {kind}, not a regular file: give the calibration.json of a run")
         try:
             text = Path(path).read_text()
             if not text.strip():

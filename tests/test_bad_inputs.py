@@ -8,8 +8,11 @@ cases here run it for ``train`` and ``apply``).
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -51,9 +54,9 @@ def blank_last_load(rows: list[list[str]]) -> None:
     rows[-1][9] = ""
 
 
-def calibrate_file(tmp_path: Path, text: str, name: str = "session.csv") -> Action:
+def calibrate_file(tmp_path: Path, text: str | bytes, name: str = "session.csv") -> Action:
     path = tmp_path / name
-    path.write_text(text)
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
     cfg = compose_config(["experiment=calibrate_csv", f"data.path={path}", "data.magnitude=9.81"])
     return lambda: train(cfg, tmp_path / "run")
 
@@ -183,6 +186,38 @@ def continuous(tmp_path: Path, poses: int, known_in_motion: bool = False, known_
     return lambda: train(cfg, tmp_path / "run")
 
 
+def fifo(tmp_path: Path, name: str) -> Path:
+    """A FIFO at ``tmp_path / name``. Should a reader open it after all, a writer comes and goes every
+    second from 10 s on (for a minute), so each open sees an empty file and the case fails instead of hanging."""
+    path = tmp_path / name
+    os.mkfifo(path)
+
+    def unblock() -> None:
+        time.sleep(10)
+        for _ in range(60):
+            try:
+                os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+            except OSError:
+                pass  # no reader now: the FIFO was refused, as it should be
+            time.sleep(1)
+
+    threading.Thread(target=unblock, daemon=True).start()
+    return path
+
+
+def calibrate_path(tmp_path: Path, path: Path, experiment: str = "calibrate_csv") -> Action:
+    cfg = compose_config([f"experiment={experiment}", f"data.path={path}", "data.magnitude=9.81"])
+    return lambda: train(cfg, tmp_path / "run")
+
+
+def sensorimotor_empty_command(tmp_path: Path, cell: str, labels: list[str]) -> Action:
+    """A log whose command on line 5 is ``cell`` (the rest cycle through ``labels``)."""
+    lines = log_text(300).splitlines()
+    lines = [lines[0], *(f"{line.rsplit(',', 1)[0]},{labels[i % len(labels)]}" for i, line in enumerate(lines[1:]))]
+    lines[4] = f"{lines[4].rsplit(',', 1)[0]},{cell}"
+    return sensorimotor(tmp_path, "\n".join(lines) + "\n", ["a", "b"], ["cmd"])
+
+
 def simulated(*overrides: str) -> Callable[[Path], Action]:
     return lambda tmp_path: (lambda: train(compose_config(list(overrides)), tmp_path / "run"))
 
@@ -221,7 +256,42 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: continuous(t, poses=10, known_at_edge=True),
         r"the known load on line 75 of .*stream.csv lies at the edge of a static interval",
     ),
+    "time column mis-cased": (lambda t: calibrate(t, "data.time_column=Time"), r"time column 'Time' is not in .* \(did you mean 'time'\?\)"),
+    "time column misspelt, static intervals off": (
+        lambda t: calibrate(t, "data.time_column=tiem", "data.static_intervals=false"), r"time column 'tiem' is not in .* \(did you mean 'time'\?\)",
+    ),
+    "group column missing": (lambda t: calibrate(t, "data.group_column=pose"), r"group column 'pose' is not in .*session.csv"),
+    "stray quote": (
+        lambda t: calibrate_file(t, 's0,s1,fx,fy,fz\n1,2,,,\n"3,4,,,\n5,6,,,\n'),
+        r"session.csv line 3: unexpected end of data \(a stray '\"'\?\): quote whole cells",
+    ),
+    "quote inside a cell": (lambda t: calibrate_file(t, 's0,s1,fx,fy,fz\n1,"2"x,,,\n'), r"session.csv line 2: ',' expected after '\"'"),
+    "quoted cell over several lines": (
+        lambda t: calibrate_file(t, 's0,s1,fx,fy,fz\n1,"2,,,\n3",4,,,\n'),
+        r"line 2 has 6 cells but the header has 5 \(a quoted cell runs over several lines: a stray '\"'\?\)",
+    ),
+    "decimal commas in a comma-separated file": (
+        lambda t: calibrate_file(t, "s0,s1,fx,fy,fz\n1,5,2,,,\n"),
+        r"line 2 has 6 cells but the header has 5 \(if ',' is also the decimal mark, save the file ';'-separated\)",
+    ),
+    "quoted decimal comma in a comma-separated file": (
+        lambda t: calibrate(t, edit=set_cell(5, 2, "1,5")), r"channel column 's1' of .* is not numeric: .*\(',' as the decimal mark",
+    ),
+    "not UTF-8 text": (lambda t: calibrate_file(t, "s0,s\xb5,fx,fy,fz\n1,2,,,\n".encode("latin-1")), r"line 1 is not UTF-8 text \(byte 0xb5\): save it as 'CSV UTF-8'"),
+    "not UTF-8 text further down": (
+        lambda t: calibrate_file(t, ("s0,s1,fx,fy,fz\n" + "1,2,,,\n" * 3000 + "3,4,,,\xb5\n").encode("latin-1")),
+        r"line 3002 is not UTF-8 text \(byte 0xb5\): save it as 'CSV UTF-8'",
+    ),
+    "FIFO as data.path": (lambda t: calibrate_path(t, fifo(t, "session.csv")), r"session.csv is a FIFO \(named pipe\), not a regular file: data.path needs"),
+    "directory as data.path": (lambda t: calibrate_path(t, t), r"is a directory, not a regular file: data.path needs"),
     # train, a calibration streamed from its file (conf/data/calibration_rows.yaml)
+    "stream: time column mis-cased": (lambda t: stream(t, "data.time_column=TIME"), r"time column 'TIME' is not in .*session.csv \(did you mean 'time'\?\)"),
+    "stream: time column misspelt, static intervals off": (
+        lambda t: stream(t, "data.time_column=tme", "data.static_intervals=false"), r"time column 'tme' is not in .*session.csv \(did you mean 'time'\?\)",
+    ),
+    "stream: FIFO as data.path": (
+        lambda t: calibrate_path(t, fifo(t, "session.csv"), "calibrate_stream"), r"is a FIFO \(named pipe\), not a regular file: data.path needs",
+    ),
     "stream: partly known load": (lambda t: stream(t, edit=blank_last_load), r"data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"),
     "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"data row 5 \(0-based\) has a NaN, empty or infinite channel cell"),
     "stream: missing column": (lambda t: stream(t, "data.load_columns=[fx,fy,fzz]"), r"load column 'fzz' is not in .*session.csv"),
@@ -235,6 +305,15 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "missing calibration.json": (lambda t: apply_to(t, t / "none.json", "s0\n1\n"), r"calibration file .* does not exist"),
     "corrupt calibration.json": (corrupt_calibration, r"cannot be read as JSON"),
     "channel count mismatch at apply": (wrong_channel_calibration, r"lacks channels s0, s1, s2, s3, s4, s5 of the calibration"),
+    "apply: FIFO as input": (
+        lambda t: apply_to(t, trained_calibration(t)) and (lambda: apply_calibration(t / "run" / "calibration.json", fifo(t, "in.csv"), t / "out.csv", False)),
+        r"in.csv is a FIFO \(named pipe\), not a regular file: input= needs",
+    ),
+    "apply: FIFO as calibration": (lambda t: apply_to(t, fifo(t, "calibration.json")), r"calibration file .* is a FIFO \(named pipe\), not a regular file"),
+    "apply: .npz input": (
+        lambda t: np.savez(t / "in.npz", s0=np.ones(3)) or (lambda: apply_calibration(trained_calibration(t), t / "in.npz", t / "out.csv", False)),
+        r"input=.*in.npz is not a CSV",
+    ),
     "output path already exists": (lambda t: apply_to(t, trained_calibration(t), output_exists=True), r"loads.csv already exists: choose another output= or add overwrite=true"),
     # simulated sensors and other data modules
     "metric constraint without a magnitude": (simulated("model.rank=5", "experiment=lord3dof"), r"model.rank is 5 but the data has 3 load axes"),
@@ -244,6 +323,19 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "sensorimotor: command column missing": (lambda t: sensorimotor(t, log_text(300), ["a", "b"], ["command"]), r"command column 'command' is not in .* \(did you mean 'cmd'\?\)"),
     "sensorimotor: constant sensor": (lambda t: sensorimotor(t, log_text(300, constant=True), ["a", "b"], ["cmd"]), r"sensor column b is constant in the training data"),
     "sensorimotor: fewer rows than columns": (lambda t: sensorimotor(t, log_text(6), ["a", "b"], ["cmd"]), r"only 4 training samples for 5 columns"),
+    "sensorimotor: empty text command": (lambda t: sensorimotor_empty_command(t, "", ["go", "stop"]), r"has 1 empty cells in command column 'cmd' \(first: line 5\)"),
+    "sensorimotor: empty numeric command": (lambda t: sensorimotor_empty_command(t, "", ["-1", "1"]), r"has 1 empty cells in command column 'cmd' \(first: line 5\)"),
+    "rows: stray quote": (lambda t: row_file(t, "rows.csv", 'a,b\n1,2\n"3,4\n'), r"rows.csv line 3: unexpected end of data"),
+    "rows: quoted decimal comma": (
+        lambda t: row_file(t, "rows.csv", 'a,b\n1,2\n3,"4,5"\n'),
+        r"line 3 has a non-numeric cell \('4,5' in column b\): every cell must be a number \(',' as the decimal mark",
+    ),
+    "rows: empty rows are no rows": (lambda t: row_file(t, "rows.csv", "a,b\n,\n1,2\n,\n"), r"has 1 data rows: give a CSV with a header and at least two rows"),
+    "rows: cache folder cannot be written": (
+        lambda t: (t / "rows.csv").write_text("a,b\n1,2\n3,4\n") and (lambda: RowFileDataModule(str(t / "rows.csv"), cache_dir=str(t / "rows.csv" / "cache")).setup()),
+        r"the CSV's conversion cannot be written to .*: set data.cache_dir to a writable folder",
+    ),
+    "rows: FIFO as data.path": (lambda t: (lambda: RowFileDataModule(str(fifo(t, "rows.csv"))).setup()), r"is a FIFO \(named pipe\), not a regular file"),
     "rows: non-numeric CSV cell": (lambda t: row_file(t, "rows.csv", "a,b\n1,2\n3,x\n"), r"line 3 has a non-numeric cell"),
     "rows: not a matrix": (lambda t: row_file(t, "rows.npy", np.arange(5.0)), r"holds an array of shape \(5,\): save a C-order 2-D array"),
     "rows: rank above the columns": (pca_rank, r"model.rank is 7 but the file has 4 columns: choose 1 to 4"),

@@ -120,6 +120,7 @@ class CalibrationData:
         truth: the true calibration, where the data is simulated.
         static_intervals: where a continuous recording was static (its other rows are left out of
             the recordings), or None where every row was taken as static.
+        warnings: what the reader noticed in the file (e.g. a channel that looks like a timestamp).
     """
 
     recordings: dict[str, CalibrationRecording]
@@ -130,6 +131,7 @@ class CalibrationData:
     test: CalibrationRecording | None = None
     truth: SensorTruth | None = None
     static_intervals: StaticIntervals | None = None
+    warnings: list[str] = field(default_factory=list)
 
     def without_group(self, group: int) -> CalibrationData:
         """The data with every recording's rows of ``group`` removed (for leave-one-group-out)."""

@@ -102,7 +102,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
 
     def build(self) -> CalibrationData:
         table = self.table if self.table is not None else read_table(self.path, self.columns)
-        table.require(self.load_columns, "load")
+        for role, names in self.named_columns().items():
+            table.require(names, role)
         excluded = {*self.load_columns, *(c for c in (self.time_column, self.configuration_column, self.group_column) if c)}
         # Numeric columns with a few bad cells stay in, so their cells are reported, not skipped.
         candidates = [name for name in [*table.columns, *table.text] if name in table.columns or name in table.corrupt]
@@ -169,8 +170,16 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             recording, test = self.hold_out_alternate_groups(recording)
         return CalibrationData(
             recordings={"rotation": recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
-            static_intervals=detection, test=test,
+            static_intervals=detection, test=test, warnings=monotonic_channel_warnings(readings, channels, "the file's rows"),
         )
+
+    def named_columns(self) -> dict[str, list[str]]:
+        """Every column the config names, by role: each must be in the file (a misspelt time column would become a channel)."""
+        roles = {"load": self.load_columns, "channel": self.channel_columns or []}
+        for role, name in (("time", self.time_column), ("configuration", self.configuration_column), ("group", self.group_column)):
+            if name:
+                roles[role] = [name]
+        return roles
 
     def hold_out_alternate_groups(self, recording: CalibrationRecording) -> tuple[CalibrationRecording, CalibrationRecording]:
         """Intervals (groups) 0, 2, 4, ... to fit, 1, 3, 5, ... held out (their known loads, if any, stay in the fit)."""
@@ -266,3 +275,21 @@ def mirror_hint_fields(hint: dict, load_columns: list[str]) -> tuple[int, int, i
     if hint["axis"] not in load_columns:
         raise SfmnetError(f"data.mirror_hint.axis '{hint['axis']}' is not one of the load columns {load_columns}")
     return int(hint["row"]), load_columns.index(hint["axis"]), int(hint["sign"])
+
+
+# Fewer rows than this may rise or fall throughout by chance.
+MONOTONIC_MIN_ROWS = 10
+
+
+def monotonic_channel_warnings(readings: np.ndarray, channels: list[str], span: str) -> list[str]:
+    """A warning for each channel that only rises (or only falls) over ``readings``, the rows ``span`` names:
+    most likely a timestamp or a counter taken as a channel, which would swamp the calibration."""
+    if len(readings) < MONOTONIC_MIN_ROWS:
+        return []
+    steps = np.diff(readings, axis=0)
+    rising, falling = (steps >= 0).all(axis=0), (steps <= 0).all(axis=0)
+    return [
+        f"channel '{name}' only {'rises' if up else 'falls'} over {span}, like a timestamp or a counter: if it is one, "
+        f"leave it out of the channels (data.time_column={name}, or data.channel_columns=[...])"
+        for name, up, down in zip(channels, rising, falling) if up or down
+    ]

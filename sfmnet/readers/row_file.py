@@ -1,16 +1,19 @@
 """Rows of numbers too many to hold in memory: a ``.npy`` read through a memory map, block by block (method §11).
 
-A CSV is converted once to ``.npy`` beside a cache key of its size and modification time, so
-later runs stream it like any ``.npy``. Blocks are shared out between processes by the data
-module itself (block ``i`` to rank ``i mod world``), never by a distributed sampler, which pads
-with repeated samples: ranks left short get empty blocks instead, so every row is counted
-exactly once and every rank takes the same number of steps (the strategy's collectives pair up).
+A CSV is converted once to ``.npy`` named by a digest of its bytes, so later runs stream it
+like any ``.npy``. Blocks are shared out between processes by the data module itself (block
+``i`` to rank ``i mod world``), never by a distributed sampler, which pads with repeated
+samples: ranks left short get empty blocks instead, so every row is counted exactly once and
+every rank takes the same number of steps (the strategy's collectives pair up).
 """
 
 from __future__ import annotations
 
-import csv
+import hashlib
+import itertools
 import math
+import os
+import tempfile
 from pathlib import Path
 
 import lightning as L
@@ -21,6 +24,10 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 
 from sfmnet.data.rows import BLOCK_BYTES, SHIFT_ROWS, NpyLayout, RowBlock, RowData, mapped_rows, npy_layout
 from sfmnet.errors import SfmnetError
+from sfmnet.readers.delimited import DelimitedFile, decimal_comma_hint, open_delimited
+from sfmnet.readers.input_file import check_input_file
+from sfmnet.readers.table_file import missing_column
+
 
 class BlockDataset(Dataset):
     """Block ``i`` is rows ``[i B, (i + 1) B)`` as a :class:`RowBlock`, read through its own memory map.
@@ -125,8 +132,7 @@ class RowFileDataModule(L.LightningDataModule):
 
     def open_rows(self) -> tuple[NpyLayout, list[str]]:
         """The file's layout and its column names (a CSV converted to ``.npy`` first)."""
-        if not self.path.is_file():
-            raise SfmnetError(f"{self.path} is not a file: check data.path (a .npy or .csv of rows)")
+        check_input_file(self.path, "data.path", "a .npy or .csv of rows")
         source = self.path if self.path.suffix == ".npy" else csv_to_npy(self.path, self.cache_dir)
         try:
             layout = npy_layout(source)
@@ -162,49 +168,79 @@ def column_index(names: list[str], wanted: list[str], role: str, path: Path) -> 
     """Positions of ``wanted`` among the file's column ``names``."""
     missing = [name for name in wanted if name not in names]
     if missing:
-        raise SfmnetError(f"{role} column '{missing[0]}' is not in {path} (its columns: {', '.join(names)})")
+        raise missing_column(missing[0], role, path, names)
     return [names.index(name) for name in wanted]
 
 
 def csv_header(path: Path) -> list[str]:
-    with path.open(newline="") as stream:
-        return [name.strip() for name in next(csv.reader(stream))]
+    return open_delimited(path).header_and_rows()[0]
+
+
+def content_key(path: Path) -> str:
+    """A digest of the file's bytes: a cache made from other contents is never reused, whatever the file's size and mtime."""
+    digest = hashlib.blake2b(digest_size=16)
+    with path.open("rb") as stream:
+        while block := stream.read(2**20):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def csv_to_npy(path: Path, cache_dir: Path | None, chunk_rows: int = 100_000) -> Path:
-    """Convert a numeric CSV (header row; empty cells NaN) to float64 ``.npy`` once; reuse it while its size and mtime match."""
-    stat = path.stat()
-    cache = (cache_dir or path.parent / ".sfmnet-cache") / f"{path.stem}-{stat.st_size}-{stat.st_mtime_ns}.npy"
+    """Convert a numeric CSV (header row; empty cells NaN) to float64 ``.npy`` once; reuse it while the CSV's bytes are the same.
+
+    The conversion is written under a name of its own and renamed into place, so runs converting
+    one CSV at once never read or clobber each other's half-written file.
+    """
+    cache = (cache_dir or path.parent / ".sfmnet-cache") / f"{path.stem}-{content_key(path)}.npy"
     if cache.is_file():
         return cache
-    header = csv_header(path)
-    with path.open(newline="") as stream:
-        rows = sum(1 for line in stream if line.strip()) - 1
+    source = open_delimited(path)
+    header, records = source.header_and_rows()
+    rows = sum(1 for _ in records)
     if rows < 2:
-        raise SfmnetError(f"{path} has {max(rows, 0)} data rows: give a CSV with a header and at least two rows")
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    partial = cache.with_name(f".{cache.name}.partial")
-    out = np.lib.format.open_memmap(partial, mode="w+", dtype=np.float64, shape=(rows, len(header)))
-    with path.open(newline="") as stream:
-        reader = csv.reader(stream)
-        next(reader)
-        written, chunk = 0, []
-        for line, row in enumerate(reader, start=2):
-            if not any(cell.strip() for cell in row):
-                continue
-            try:
-                chunk.append([float(cell) if cell.strip() else math.nan for cell in row])
-            except ValueError:
-                partial.unlink(missing_ok=True)
-                raise SfmnetError(f"{path} line {line} has a non-numeric cell: every cell must be a number") from None
-            if len(chunk[-1]) != len(header):
-                partial.unlink(missing_ok=True)
-                raise SfmnetError(f"{path} line {line} has {len(chunk[-1])} cells but the header has {len(header)}")
-            if len(chunk) == chunk_rows:
-                out[written : written + len(chunk)] = chunk
-                written, chunk = written + len(chunk), []
-        out[written : written + len(chunk)] = chunk
-    out.flush()
-    del out
-    partial.replace(cache)
+        raise SfmnetError(f"{path} has {rows} data rows: give a CSV with a header and at least two rows")
+    try:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(dir=cache.parent, prefix=f".{cache.name}.", suffix=".partial")
+    except OSError as error:
+        raise SfmnetError(
+            f"the CSV's conversion cannot be written to {cache.parent} ({error.strerror}): set data.cache_dir to a writable folder"
+        ) from None
+    os.close(handle)
+    try:
+        out = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.float64, shape=(rows, len(header)))
+        written = fill_rows(out, source, header, chunk_rows)
+        out.flush()
+        del out
+        if written != rows:
+            raise SfmnetError(f"{path} changed while it was being converted: run again once it is written")
+        os.replace(temporary, cache)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
     return cache
+
+
+def fill_rows(out: np.ndarray, source: DelimitedFile, header: list[str], chunk_rows: int) -> int:
+    """Parse the CSV's data rows into ``out``, ``chunk_rows`` at a time; returns the rows written."""
+    records = source.header_and_rows()[1]
+    written = 0
+    while chunk := list(itertools.islice(records, chunk_rows)):
+        if written + len(chunk) > len(out):
+            raise SfmnetError(f"{source.path} changed while it was being converted: run again once it is written")
+        out[written : written + len(chunk)] = [row_values(source, header, line, cells) for line, cells in chunk]
+        written += len(chunk)
+    return written
+
+
+def row_values(source: DelimitedFile, header: list[str], line: int, cells: list[str]) -> list[float]:
+    """One data row's numbers (NaN where empty); a short, long or non-numeric row is refused naming its line."""
+    source.check_width(line, cells, len(header))
+    values = [source.number(cell) for cell in cells]
+    if None in values:
+        column = values.index(None)
+        raise SfmnetError(
+            f"{source.path} line {line} has a non-numeric cell ('{cells[column]}' in column {header[column]}): "
+            f"every cell must be a number{decimal_comma_hint([cells[column]])}"
+        )
+    return values

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +57,8 @@ class SensorimotorCsvDataModule(SensorimotorDataModule):
         sensors = table.numeric(self.sensor_columns, "sensor")
         check_finite(sensors, self.sensor_columns, self.path, "sensor")
         raw = [table.categorical(name, "command") for name in self.command_columns]
+        for name, values in zip(self.command_columns, raw):
+            refuse_empty_commands(values, name, self.path)
         split = round(len(sensors) * (1 - self.test_fraction))
         commands, indices = [], []
         for name, values in zip(self.command_columns, raw):
@@ -75,6 +78,17 @@ class SensorimotorCsvDataModule(SensorimotorDataModule):
             sensors=self.sensor_columns,
             commands=commands,
             period=self.period,
+        )
+
+
+def refuse_empty_commands(values: np.ndarray, name: str, path: Path) -> None:
+    """An empty command cell is no command a learner can produce: refuse it rather than make it a class of its own."""
+    empty = np.array([value == "" or (isinstance(value, float) and math.isnan(value)) for value in values])
+    if empty.any():
+        rows = np.nonzero(empty)[0]
+        raise SfmnetError(
+            f"{path} has {len(rows)} empty cells in command column '{name}' (first: line {rows[0] + 2}): "
+            "fill in every command or drop those rows"
         )
 
 

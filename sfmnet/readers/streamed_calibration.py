@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from sfmnet.readers.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields
+from sfmnet.readers.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields, monotonic_channel_warnings
 from sfmnet.data.recording import CalibrationData
 from sfmnet.readers.row_file import RowFileDataModule, column_index
-from sfmnet.data.rows import NpyLayout, StreamedRecording, mapped_rows
+from sfmnet.data.rows import SHIFT_ROWS, NpyLayout, StreamedRecording, mapped_rows
 from sfmnet.readers.static_rows import fitted_rows, static_settings
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
@@ -81,6 +81,8 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         magnitude = calibration_magnitude(self.magnitude, self.mass, self.gravity)
         layout, names = self.open_rows()
         load_index = column_index(names, self.load_columns, "load", self.path)
+        if self.time_column:
+            column_index(names, [self.time_column], "time", self.path)
         channels = self.channel_columns or [n for n in names if n not in self.load_columns and n != self.time_column]
         if len(channels) < len(self.axes):
             raise SfmnetError(
@@ -95,9 +97,14 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         detection = self.find_static_rows(recording, names) if self.static is not None else None
         if self.mirror_hint is not None:
             self.read_mirror_hint(recording)
+        first = min(recording.rows, SHIFT_ROWS)
         return CalibrationData(
             recordings={recording.recording: recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
             static_intervals=detection,
+            warnings=monotonic_channel_warnings(
+                np.asarray(mapped_rows(layout, 0, first)[:, recording.channel_index]), channels,
+                "the file's rows" if first == recording.rows else f"the first {first} rows",
+            ),
         )
 
     def find_static_rows(self, recording: StreamedRecording, names: list[str]) -> StaticIntervals:

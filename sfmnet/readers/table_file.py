@@ -2,15 +2,23 @@
 
 from __future__ import annotations
 
-import csv
 import difflib
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from sfmnet.errors import SfmnetError
+from sfmnet.readers.delimited import decimal_comma_hint, open_delimited
+from sfmnet.readers.input_file import check_input_file
+
+
+def missing_column(name: str, role: str, path: Path, names: list[str]) -> SfmnetError:
+    """The error for a ``role`` column ``name`` that the file lacks, with its closest match (any case first)."""
+    same_but_case = [other for other in names if other.casefold() == name.casefold()]
+    close = same_but_case or difflib.get_close_matches(name, names, n=1)
+    hint = f" (did you mean '{close[0]}'?)" if close else ""
+    return SfmnetError(f"{role} column '{name}' is not in {path}{hint}; its columns are: {', '.join(names)}")
 
 
 @dataclass(frozen=True)
@@ -35,14 +43,10 @@ class Table:
         """Raise a clear error naming each missing column and its closest match."""
         for name in names:
             if name not in self.columns and name not in self.text:
-                close = difflib.get_close_matches(name, [*self.columns, *self.text], n=1)
-                hint = f" (did you mean '{close[0]}'?)" if close else ""
-                raise SfmnetError(
-                    f"{role} column '{name}' is not in {self.path}{hint}; its columns are: "
-                    f"{', '.join([*self.columns, *self.text])}"
-                )
+                raise missing_column(name, role, self.path, [*self.columns, *self.text])
             if name in self.text:
-                raise SfmnetError(f"{role} column '{name}' of {self.path} is not numeric: {self.text[name]}")
+                hint = decimal_comma_hint(self.cells.get(name, []))
+                raise SfmnetError(f"{role} column '{name}' of {self.path} is not numeric: {self.text[name]}{hint}")
 
     def categorical(self, name: str, role: str) -> np.ndarray:
         """One column's values as categories: the text labels, or the numbers of a numeric column."""
@@ -56,19 +60,16 @@ class Table:
         return np.stack([self.columns[name] for name in names], axis=1)
 
 
-def read_table(path: Path, columns: list[str] | None = None) -> Table:
-    """Read a CSV (header row, one sample per row), ``.npy`` (needs ``columns``), ``.npz`` (one array per column),
-    or a whitespace-separated text table (``.txt``, ``.dat``, ``.tsv``: numbers only, a header row unless
-    ``columns`` names the columns, as loggers and MATLAB's ``save -ascii`` write).
+def read_table(path: Path, columns: list[str] | None = None, option: str = "data.path") -> Table:
+    """Read a CSV (header row, one sample per row; see :mod:`sfmnet.readers.delimited`), ``.npy`` (needs
+    ``columns``), ``.npz`` (one array per column), or a whitespace-separated text table (``.txt``, ``.dat``,
+    ``.tsv``: numbers only, a header row unless ``columns`` names the columns, as loggers and MATLAB's
+    ``save -ascii`` write). ``option`` is what the user set the path with (for messages).
 
     Empty cells become NaN. A column with any non-numeric, non-empty cell is kept as text and
     refused where a number is needed.
     """
-    path = Path(path)
-    if not path.exists():
-        raise SfmnetError(f"{path} does not exist: check data.path")
-    if path.is_dir():
-        raise SfmnetError(f"{path} is a directory: data.path needs a file (.csv, .npy or .npz)")
+    path = check_input_file(path, option, "a file (.csv, .npy or .npz)")
     try:
         if path.suffix == ".npy":
             return _from_array(path, np.load(path, allow_pickle=False), columns)
@@ -101,40 +102,45 @@ WHITESPACE_SUFFIXES = (".txt", ".dat", ".tsv")
 
 def _read_whitespace(path: Path, columns: list[str] | None) -> Table:
     """A numeric table separated by spaces or tabs; named by ``columns``, else by its first line."""
-    header = None if columns else path.open().readline().split()
-    if header and all(_number(name) is not None for name in header):
+    header = None
+    if not columns:
+        with path.open(encoding="utf-8-sig") as stream:
+            header = stream.readline().split()
+    if header and all(_is_number(name) for name in header):
         raise SfmnetError(
             f"{path} has no header row (its first line is numbers): name its {len(header)} columns with data.columns=[...]"
         )
-    array = np.loadtxt(path, ndmin=2, skiprows=0 if columns else 1, dtype=np.float64)
+    array = np.loadtxt(path, ndmin=2, skiprows=0 if columns else 1, dtype=np.float64, encoding="utf-8-sig")
     return _from_array(path, array, columns or header)
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _read_csv(path: Path) -> Table:
-    with path.open(newline="") as stream:
-        rows = list(csv.reader(stream))
-    rows = [row for row in rows if any(cell.strip() for cell in row)]
-    if not rows:
-        raise SfmnetError(f"{path} is empty: give a CSV with a header row and one row per sample")
-    header = [name.strip() for name in rows[0]]
-    duplicates = sorted({name for name in header if header.count(name) > 1})
-    if duplicates:
-        raise SfmnetError(f"{path} has duplicate column names: {', '.join(duplicates)}; rename them")
-    body = rows[1:]
+    source = open_delimited(path)
+    header, records = source.header_and_rows()
+    lines, body = [], []
+    for line, cells in records:
+        source.check_width(line, cells, len(header))
+        lines.append(line)
+        body.append(cells)
     if not body:
         raise SfmnetError(f"{path} has a header but no data rows")
-    for number, row in enumerate(body, start=2):
-        if len(row) != len(header):
-            raise SfmnetError(f"{path} line {number} has {len(row)} cells but the header has {len(header)}")
     columns: dict[str, np.ndarray] = {}
     text: dict[str, list[str]] = {}
     cells_of: dict[str, list[str]] = {}
     corrupt: set[str] = set()
     for index, name in enumerate(header):
-        cells = [row[index].strip() for row in body]
-        values = [_number(cell) for cell in cells]
+        cells = [row[index] for row in body]
+        values = [source.number(cell) for cell in cells]
         if any(value is None for value in values):
-            bad = [(line, cell) for line, (cell, value) in enumerate(zip(cells, values), start=2) if value is None]
+            bad = [(line, cell) for line, cell, value in zip(lines, cells, values) if value is None]
             text[name] = [f"line {line}: '{cell}'" for line, cell in bad[:3]] + ([f"... {len(bad)} cells"] if len(bad) > 3 else [])
             cells_of[name] = cells
             if len(bad) < len(cells) / 2:
@@ -142,15 +148,6 @@ def _read_csv(path: Path) -> Table:
         else:
             columns[name] = np.array(values, dtype=np.float64)
     return Table(path, columns, text, frozenset(corrupt), cells_of)
-
-
-def _number(cell: str) -> float | None:
-    if cell == "":
-        return math.nan
-    try:
-        return float(cell)
-    except ValueError:
-        return None
 
 
 # Beyond this no sensor reads: a corrupt cell or a unit slip, which would swamp every other row.

@@ -54,7 +54,7 @@ class CalibrationTask(Task):
             outlying = torch.zeros(len(loads), dtype=torch.bool)
             outlying[goodness.outlier_rows] = True
             uncertainty = model.uncertainty(recording.without(outlying), loads[~outlying])
-        warnings = [*model.fit_warnings, *warnings]
+        warnings = [*data.warnings, *model.fit_warnings, *warnings]
         calibration = model.to_calibration(
             data.channels,
             data.axes,
