@@ -12,7 +12,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from sfmnet.errors import SfmnetError
+from sfmnet.errors import FitInterrupted, SfmnetError
 
 USAGE = """\
 usage: python -m sfmnet [train] [key=value ...] [-m]
@@ -55,15 +55,16 @@ def user_error(error: BaseException) -> SfmnetError | None:
 
 
 def exit_on_user_error(action: Callable[[], object]) -> None:
-    """Run ``action``; a user error becomes one line on stderr and exit status 2."""
+    """Run ``action``; a user error becomes one line on stderr and exit status 2 (an interrupted fit: 130)."""
     try:
         action()
     except Exception as error:
         cause = user_error(error)
         if cause is None or debug_enabled():
             raise
-        print(f"error: {cause}", file=sys.stderr)
-        sys.exit(2)
+        interrupted = isinstance(cause, FitInterrupted)
+        print(f"{'interrupted' if interrupted else 'error'}: {cause}", file=sys.stderr)
+        sys.exit(cause.exit_status if interrupted else 2)
 
 
 def refuse_used_run_dir(overrides: list[str]) -> None:

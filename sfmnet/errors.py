@@ -6,3 +6,13 @@ class SfmnetError(Exception):
 
     The command line prints it without a traceback and exits with status 2.
     """
+
+
+class FitInterrupted(SfmnetError):
+    """The user stopped a fit (Ctrl-C). The message names the checkpoint to resume from.
+
+    The command line prints it as ``interrupted: ...`` and exits with status 130, as a shell does
+    for a process ended by SIGINT.
+    """
+
+    exit_status = 130

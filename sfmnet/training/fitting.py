@@ -8,9 +8,10 @@ from pathlib import Path
 import lightning as L
 import torch
 from hydra.utils import instantiate
+from lightning.pytorch.trainer.states import TrainerStatus
 from omegaconf import DictConfig
 
-from sfmnet.errors import SfmnetError
+from sfmnet.errors import FitInterrupted, SfmnetError
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.models.linear_calibrator import LinearCalibrator
 from sfmnet.models.contracts import FitMode, Learner
@@ -44,8 +45,24 @@ def fit(
             trainer_options.update(fast_dev_run=False, limit_train_batches=1, max_epochs=model.dev_run_passes)
     module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer), true_matrix=true_matrix)
     trainer: L.Trainer = instantiate(cfg.trainer, **trainer_options)
-    trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
+    try:
+        trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
+    except SystemExit:
+        # Lightning's answer to Ctrl-C: it tears the fit down and exits with status 1.
+        if trainer.state.status is TrainerStatus.INTERRUPTED:
+            raise FitInterrupted(resume_hint(trainer)) from None
+        raise
     return trainer
+
+
+def resume_hint(trainer: L.Trainer) -> str:
+    """Where an interrupted fit stopped and the checkpoint to resume it from."""
+    stopped = f"{type(trainer.lightning_module.model).__name__} stopped in epoch {trainer.current_epoch + 1}"
+    checkpoint = trainer.checkpoint_callback
+    last = Path(checkpoint.dirpath) / "last.ckpt" if checkpoint is not None and checkpoint.dirpath else None
+    if last is None or not last.is_file():
+        return f"{stopped}, before its first checkpoint: run it again from the start"
+    return f"{stopped}: resume with ckpt_path={last} (and a new hydra.run.dir); the result is the uninterrupted run's"
 
 
 def refine_in_process(

@@ -1,0 +1,24 @@
+"""A callback for resume tests: the run sends itself a signal at the end of one epoch, before that epoch's checkpoint.
+
+Used from the command line as ``+callbacks.signal._target_=tests.signal_at_epoch.SignalAtEpoch
++callbacks.signal.epoch=5 +callbacks.signal.signal=SIGKILL`` (Lightning runs checkpoint callbacks
+after the others, so the newest checkpoint on disk is the previous epoch's).
+"""
+
+from __future__ import annotations
+
+import os
+import signal as signals
+
+import lightning as L
+from lightning.pytorch.callbacks import Callback
+
+
+class SignalAtEpoch(Callback):
+    def __init__(self, epoch: int, signal: str = "SIGKILL") -> None:
+        self.epoch = epoch
+        self.signal = getattr(signals, signal)
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.current_epoch == self.epoch:
+            os.kill(os.getpid(), self.signal)
