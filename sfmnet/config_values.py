@@ -18,7 +18,7 @@ import pickle
 import types
 import typing
 import zipfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -293,7 +293,7 @@ def matches(value: Any, hint: Any) -> bool:
     if hint is None or hint is type(None):
         return value is None
     origin, arguments = typing.get_origin(hint) or hint, typing.get_args(hint)
-    if origin in (list, tuple, set, frozenset, typing.Sequence):
+    if origin in (list, tuple, set, frozenset, Sequence):
         if not isinstance(value, list):
             return False
         if origin is tuple and arguments and arguments[-1] is not Ellipsis:
@@ -315,7 +315,7 @@ def describe(hint: Any) -> str:
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
         return " or ".join(dict.fromkeys(describe(option) for option in typing.get_args(hint)))
     origin, arguments = typing.get_origin(hint) or hint, typing.get_args(hint)
-    if origin in (list, tuple, set, frozenset, typing.Sequence):
+    if origin in (list, tuple, set, frozenset, Sequence):
         return f"a list of {PLURALS.get(arguments[0], 'values')}" if arguments else "a list"
     if origin in (dict, Mapping) or dataclasses.is_dataclass(origin):
         return "a mapping {key: value, ...}"
