@@ -198,9 +198,9 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
     """Fit through :func:`sfmnet.training.run.train` into ``run_dir`` (or a temporary one) and read its calibration."""
     from hydra.utils import instantiate
 
-    from sfmnet.training.run import train
-
     from sfmnet.cli import user_error
+    from sfmnet.config_values import check_config
+    from sfmnet.training.run import train
 
     with contextlib.ExitStack() as stack:
         if run_dir is None:
@@ -208,6 +208,8 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
         check_run_dir(Path(run_dir))
         if not verbose:
             stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
+        # The data module is built here, before train() checks the config: check it first.
+        check_config(cfg)
         try:
             datamodule = instantiate(cfg.data, _partial_=True)(table=table)
             train(cfg, Path(run_dir), datamodule=datamodule)

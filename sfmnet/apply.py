@@ -37,6 +37,8 @@ def output_names(axes: list[str], existing: list[str]) -> list[str]:
 
 def apply_calibration(calibration_path: Path, input_path: Path, output_path: Path, overwrite: bool) -> int:
     """Write ``output_path``: every input row and column, then the calibrated loads. Returns the row count."""
+    if output_path.is_dir():
+        raise SfmnetError(f"output={output_path} is a folder: give the file to write, e.g. output={output_path / 'loads.csv'}")
     if output_path.exists() and not overwrite:
         raise SfmnetError(f"{output_path} already exists: choose another output= or add overwrite=true")
     if output_path.resolve() == input_path.resolve():

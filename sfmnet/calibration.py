@@ -120,8 +120,10 @@ class Calibration:
         missing = sorted({"matrix", "offset", "channels", "axes"} - set(raw))
         if missing:
             raise SfmnetError(f"calibration file {path} lacks {', '.join(missing)}: give the calibration.json of a run")
-        matrix = torch.tensor(raw["matrix"], dtype=torch.float64)
-        offset = torch.tensor(raw["offset"], dtype=torch.float64)
+        if not all(isinstance(raw[key], list) and all(isinstance(name, str) for name in raw[key]) for key in ("channels", "axes")):
+            raise SfmnetError(f"calibration file {path}: channels and axes must be lists of names: give the calibration.json of a run")
+        matrix = numbers(raw, "matrix", path)
+        offset = numbers(raw, "offset", path)
         if matrix.ndim != 2 or matrix.shape != (len(raw["axes"]), len(raw["channels"])) or offset.shape != (len(raw["channels"]),):
             raise SfmnetError(
                 f"calibration file {path} is inconsistent: matrix must be axes x channels and offset one per channel"
@@ -131,9 +133,26 @@ class Calibration:
             offset=offset,
             channels=list(raw["channels"]),
             axes=list(raw["axes"]),
-            singular_values=list(raw.get("singular_values", [])),
-            residual_rms=float(raw.get("residual_rms", float("nan"))),
-            matrix_std=torch.tensor(raw["matrix_std"], dtype=torch.float64) if "matrix_std" in raw else None,
-            offset_std=torch.tensor(raw["offset_std"], dtype=torch.float64) if "offset_std" in raw else None,
+            singular_values=numbers(raw, "singular_values", path, finite=False).tolist() if "singular_values" in raw else [],
+            residual_rms=float(numbers(raw, "residual_rms", path, finite=False)) if "residual_rms" in raw else float("nan"),
+            matrix_std=numbers(raw, "matrix_std", path, finite=False) if "matrix_std" in raw else None,
+            offset_std=numbers(raw, "offset_std", path, finite=False) if "offset_std" in raw else None,
             extra={k: v for k, v in raw.items() if k not in known},
         )
+
+
+def numbers(raw: dict[str, Any], key: str, path: str | Path, finite: bool = True) -> torch.Tensor:
+    """``raw[key]`` as float64; text, uneven rows, or (where ``finite``) NaN or infinity are one line naming the file."""
+    try:
+        values = torch.tensor(raw[key], dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError):
+        raise SfmnetError(
+            f"calibration file {path}: {key} holds something other than numbers (text, null or uneven rows): "
+            "give the calibration.json of a run"
+        ) from None
+    if finite and not torch.isfinite(values).all():
+        raise SfmnetError(
+            f"calibration file {path}: {key} holds NaN or infinite values, which would turn every load into NaN: "
+            "give the calibration.json of a successful run"
+        )
+    return values

@@ -1,4 +1,9 @@
-"""Check command-line overrides before Hydra runs, so a typo gets one line with the closest valid names."""
+"""Check command-line overrides before Hydra runs, so a typo gets one line with the closest valid names.
+
+Overrides are read with Hydra's own parser: a value its grammar cannot take gets the quoted
+form that works, a sweep (``a,b``, ``choice(...)``, ``range(...)``, ``glob(...)``) is expanded as
+Hydra's sweeper will expand it, and one without ``-m`` is told to add it.
+"""
 
 from __future__ import annotations
 
@@ -6,17 +11,20 @@ import difflib
 from pathlib import Path
 
 from omegaconf import OmegaConf
+from omegaconf.errors import InterpolationResolutionError, OmegaConfBaseException
 
+from sfmnet.config_values import check_config
 from sfmnet.errors import SfmnetError
+from sfmnet.io import check_writable_dir
 
 
-def flat_keys(config: dict, prefix: str = "") -> list[str]:
-    """Every key path of a plain nested dict, e.g. ``data.errors.friction``."""
+def flat_keys(config: dict | list, prefix: str = "") -> list[str]:
+    """Every key path of plain nested dicts and lists, e.g. ``data.errors.friction``, ``data.configurations.0.mass``."""
     keys = []
-    for key, value in config.items():
+    for key, value in config.items() if isinstance(config, dict) else enumerate(config):
         path = f"{prefix}{key}"
         keys.append(path)
-        if isinstance(value, dict):
+        if isinstance(value, (dict, list)):
             keys.extend(flat_keys(value, f"{path}."))
     return keys
 
@@ -26,46 +34,110 @@ def suggestion(name: str, choices: list[str]) -> str:
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 
+def quoted(item: str) -> str:
+    """``key=value`` with the value quoted for Hydra, and the whole quoted for the shell."""
+    key, _, value = item.partition("=")
+    if '"' in value:
+        return f"\"{key}='{value}'\""
+    return f"'{key}=\"{value}\"'"
+
+
+def parse_override(item: str):
+    """Hydra's parse of one ``key=value``; a value its grammar cannot take is one line saying how to quote it."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import OverrideParseException
+
+    try:
+        return OverridesParser.create().parse_overrides([item])[0]
+    except OverrideParseException:
+        raise SfmnetError(
+            f"Hydra cannot read {item}: outside quotes a value may not hold '=', brackets, parentheses, spaces, "
+            f"quotes or non-ASCII letters; quote it: {quoted(item)}"
+        ) from None
+
+
+def swept_values(override, item: str, options: list[str]) -> list[str]:
+    """The values a ``-m`` run takes for one override, as strings for ``key=value`` (``options``: a group's configs)."""
+    from hydra.core.override_parser.types import Glob
+    from hydra.errors import HydraException
+
+    value = override.value()
+    if isinstance(value, Glob):
+        return value.filter(options)
+    try:
+        return list(override.sweep_string_iterator())
+    except HydraException:
+        raise SfmnetError(f"{item} is a sweep that -m cannot list: give the values with a,b or choice(...) or range(...)") from None
+
+
 def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) -> None:
-    """Raise :class:`SfmnetError` naming the first override that selects or sets something that does not exist.
+    """Raise :class:`SfmnetError` naming the first override that Hydra cannot read, that selects or sets something
+    that does not exist, or whose value refers to a key that does not exist; or if the run directory cannot be written.
 
     Group selections (``experiment=fingertp``) are checked against the files in ``conf/<group>/``;
     keys (``data.nosie_fraction=0.1``) against the config they would change. In a sweep (``-m``)
-    every value of a swept group is checked, and the keys against the first combination.
+    every value of a swept group is checked, and the rest against the first combination.
     ``hydra.*`` keys and ``+``/``~`` overrides are left to Hydra.
     """
     from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
 
     groups = {path.name: sorted(p.stem for p in path.glob("*.yaml")) for path in Path(config_dir).iterdir() if path.is_dir()}
     selections: list[str] = []
     settings: list[str] = []
+    first_job: list[str] = []
     given: set[str] = set()
     for item in overrides:
-        key, sep, value = item.partition("=")
-        if not sep:
+        if item.startswith("-") or "=" not in item:
             continue
-        given.add(key.lstrip("+"))
-        if key.startswith(("hydra.", "+", "~")):
+        override = parse_override(item)
+        key = override.key_or_group
+        given.add(key)
+        if override.is_sweep_override():
+            if not sweep:
+                raise SfmnetError(
+                    f"{item} gives several values: add -m to run one job per value (a sweep), or, if the commas belong "
+                    f"to one value, quote it: {quoted(item)}"
+                )
+            values = swept_values(override, item, groups.get(key, []))
+            if not values:
+                raise SfmnetError(f"{item} selects nothing: choose from {', '.join(groups.get(key, []))}")
+            first_job.append(f"{override.get_key_element()}={values[0]}")
+        else:
+            values = [] if override.is_delete() else [override.get_value_element_as_str()]
+            first_job.append(item)
+        if override.is_hydra_override() or override.is_add() or override.is_force_add() or override.is_delete():
             continue
-        if key in groups:
-            values = [v.strip() for v in value.split(",")] if sweep else [value]
+        if key in groups and override.package is None:
             for choice in values:
                 if choice not in groups[key]:
                     raise SfmnetError(
                         f"unknown {key} '{choice}'{suggestion(choice, groups[key])}: choose one of {', '.join(groups[key])}"
                     )
             selections.append(f"{key}={values[0]}")
-        else:
+        elif key not in groups:
             settings.append(key)
     with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
         config = compose(config_name="train", overrides=selections)
-    keys = flat_keys(OmegaConf.to_container(config, resolve=False, throw_on_missing=False))
-    for key in settings:
-        if key not in keys:
-            raise SfmnetError(
-                f"unknown config key '{key}'{suggestion(key, keys)}: see python -m sfmnet train --help "
-                "(add a new key with +key=value)"
-            )
-    missing = sorted(key for key in OmegaConf.missing_keys(config) if key not in given)
-    if missing:
-        raise SfmnetError(f"{', '.join(missing)} must be given, e.g. {missing[0]}=<value>")
+        keys = flat_keys(OmegaConf.to_container(config, resolve=False, throw_on_missing=False))
+        for key in settings:
+            if key not in keys:
+                raise SfmnetError(
+                    f"unknown config key '{key}'{suggestion(key, keys)}: see python -m sfmnet train --help "
+                    "(add a new key with +key=value)"
+                )
+        missing = sorted(key for key in OmegaConf.missing_keys(config) if key not in given)
+        if missing:
+            raise SfmnetError(f"{', '.join(missing)} must be given, e.g. {missing[0]}=<value>")
+        try:
+            job = compose(config_name="train", overrides=first_job, return_hydra_config=True)
+        except (HydraException, OmegaConfBaseException) as error:
+            raise SfmnetError(f"Hydra cannot apply these overrides: {' '.join(str(error).split())}") from None
+    task = OmegaConf.masked_copy(job, [key for key in job if key != "hydra"])
+    try:
+        check_config(task)
+    except InterpolationResolutionError:
+        # A resolver that needs the running job (${hydra:...}): the run checks it again once Hydra has set it up.
+        pass
+    output = "hydra.sweep.dir" if sweep else "hydra.run.dir"
+    check_writable_dir(Path(OmegaConf.select(job, output)), output)

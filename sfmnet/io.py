@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import os
@@ -11,18 +12,58 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from sfmnet.errors import SfmnetError
+
+# What to do when writing fails, by errno; anything else: check the path.
+WRITE_REMEDIES = {
+    errno.EACCES: "choose a folder you may write to, or change its permissions",
+    errno.EPERM: "choose a folder you may write to, or change its permissions",
+    errno.EROFS: "its file system is read-only: choose a folder on a writable one",
+    errno.ENOSPC: "the disk is full: free some space or write elsewhere",
+    errno.EDQUOT: "the disk quota is used up: free some space or write elsewhere",
+    errno.EISDIR: "that is a folder: give the name of a file to write",
+    errno.EEXIST: "a file stands where a folder is needed: choose another path",
+    errno.ENOTDIR: "a file stands where a folder is needed: choose another path",
+}
+
+
+def write_error(path: Path, error: OSError) -> SfmnetError:
+    """One line for a file-system error while writing ``path``: the path, the cause and what to do."""
+    remedy = WRITE_REMEDIES.get(error.errno, "check the path and its folders")
+    return SfmnetError(f"cannot write {path} ({error.strerror or error}): {remedy}")
+
+
+def check_writable_dir(path: Path, option: str) -> None:
+    """Refuse, naming ``option``, a folder that cannot be made or written: a file there or above it, or no permission.
+
+    Nothing is created: the nearest existing folder of ``path`` is only looked at.
+    """
+    path = Path(path)
+    existing = next(folder for folder in [path, *path.parents] if folder.exists() or folder == folder.parent)
+    if not existing.is_dir():
+        raise SfmnetError(f"{path} cannot be a folder: {existing} is a file; choose another {option}")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise SfmnetError(
+            f"{path} cannot be written: {existing} is read-only for you; choose another {option} or change its permissions"
+        )
+
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
+    """Write ``data`` to a temporary file beside ``path``, then rename it into place; a file-system error is one line."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        raise write_error(path, error) from None
     try:
         with os.fdopen(handle, "wb") as stream:
             stream.write(data)
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as error:
         Path(temporary).unlink(missing_ok=True)
+        if isinstance(error, OSError):
+            raise write_error(path, error) from None
         raise
 
 

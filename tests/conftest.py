@@ -74,6 +74,12 @@ def write_session(path: Path, known_loads: int = 3, seed: int = 0, edit=None) ->
     return datamodule.data.truth.matrix
 
 
+def lightning_checkpoint(path: Path) -> Path:
+    """A file shaped like a Lightning checkpoint, with nothing in it to restore: passes the check of ckpt_path."""
+    torch.save({"state_dict": {}, "epoch": 0, "pytorch-lightning_version": "2"}, path)
+    return path
+
+
 def experiment_overrides(experiment: str, tmp_path: Path) -> list[str]:
     """What an experiment that reads the user's file needs: a simulated session written to disk.
 

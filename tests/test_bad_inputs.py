@@ -8,6 +8,8 @@ cases here run it for ``train`` and ``apply``).
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
 import subprocess
 import sys
@@ -15,6 +17,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -29,7 +32,7 @@ from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, w
 from sfmnet.readers.sensorimotor_csv import SensorimotorCsvDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
-from tests.conftest import REPO, compose_config, write_session
+from tests.conftest import REPO, compose_config, lightning_checkpoint, write_session
 from tests.test_csv_and_apply import set_cell
 
 Action = Callable[[], object]
@@ -218,8 +221,103 @@ def sensorimotor_empty_command(tmp_path: Path, cell: str, labels: list[str]) -> 
     return sensorimotor(tmp_path, "\n".join(lines) + "\n", ["a", "b"], ["cmd"])
 
 
+def array_file(tmp_path: Path, name: str, write: Callable[[Path], object], *overrides: str) -> Action:
+    """``write`` makes ``name`` in ``tmp_path``; returns the run of ``overrides`` (an experiment) on it as data.path."""
+    path = tmp_path / name
+    write(path)
+    cfg = compose_config([*overrides, f"data.path={path}"])
+    return lambda: train(cfg, tmp_path / "run")
+
+
+def calibrate_array(tmp_path: Path, name: str, write: Callable[[Path], object]) -> Action:
+    """A calibrate_csv run on an array file, its columns named s0..s3, fx, fy, fz."""
+    return array_file(
+        tmp_path, name, write, "experiment=calibrate_csv", "data.magnitude=9.81", "data.columns=[s0,s1,s2,s3,fx,fy,fz]"
+    )
+
+
+def session_columns(**columns: np.ndarray) -> Callable[[Path], object]:
+    return lambda path: np.savez(path, **columns)
+
+
+def resume_from(tmp_path: Path, write: Callable[[Path], object]) -> Action:
+    """The default run resumed from a checkpoint file that ``write`` makes."""
+    write(tmp_path / "last.ckpt")
+    cfg = compose_config([f"ckpt_path={tmp_path / 'last.ckpt'}"])
+    return lambda: train(cfg, tmp_path / "run")
+
+
+def truncated_checkpoint(path: Path) -> None:
+    lightning_checkpoint(path)
+    path.write_bytes(path.read_bytes()[:200])
+
+
+def calibration_json(tmp_path: Path, matrix_text: str) -> Action:
+    """apply with a calibration file whose matrix is ``matrix_text`` (JSON), for channels s0, s1 and one axis."""
+    path = tmp_path / "calibration.json"
+    path.write_text(f'{{"matrix": {matrix_text}, "offset": [0, 0], "channels": ["s0", "s1"], "axes": ["fx"]}}')
+    return apply_to(tmp_path, path, "s0,s1\n1,2\n")
+
+
+def apply_into(tmp_path: Path, output: Path, *patches) -> Action:
+    """apply of a valid calibration writing ``output``, under the ``patches`` (file-system faults)."""
+    calibration = tmp_path / "calibration.json"
+    calibration.write_text('{"matrix": [[1, 2]], "offset": [0, 0], "channels": ["s0", "s1"], "axes": ["fx"]}')
+    (tmp_path / "readings.csv").write_text("s0,s1\n1,2\n")
+
+    def action() -> None:
+        with contextlib.ExitStack() as stack:
+            for patch in patches:
+                stack.enter_context(patch)
+            apply_calibration(calibration, tmp_path / "readings.csv", output, overwrite=False)
+
+    return action
+
+
+def read_only_run_dir(tmp_path: Path) -> Action:
+    """A run into a folder without write permission (root ignores the bits, so the check is shown them)."""
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o555)
+    cfg = compose_config([])
+
+    def action() -> None:
+        with mock.patch("os.access", lambda path, mode: not Path(path).is_relative_to(locked)):
+            train(cfg, locked / "run")
+
+    return action
+
+
+def run_into_file(tmp_path: Path, run_dir: str) -> Action:
+    """A run whose directory is, or lies under, the file ``tmp_path/taken``."""
+    (tmp_path / "taken").write_text("keep me\n")
+    cfg = compose_config([])
+    return lambda: train(cfg, tmp_path / run_dir)
+
+
+def overrides_of(*overrides: str, sweep: bool = False) -> Callable[[Path], Action]:
+    return lambda tmp_path: (lambda: check_overrides([item.format(tmp=tmp_path) for item in overrides], config_dir(), sweep=sweep))
+
+
+def escaped_reference(tmp_path: Path) -> Action:
+    cfg = compose_config(["experiment=calibrate_csv", 'data.path="/data/a\\${x}.csv"', "data.magnitude=9.81"])
+    return lambda: train(cfg, tmp_path / "run")
+
+
+def denied(*args, **kwargs) -> None:
+    raise PermissionError(errno.EACCES, "Permission denied")
+
+
+def disk_full(*args) -> None:
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
 def simulated(*overrides: str) -> Callable[[Path], Action]:
     return lambda tmp_path: (lambda: train(compose_config(list(overrides)), tmp_path / "run"))
+
+
+RNG = np.random.default_rng(0)
+SEVEN_COLUMNS = RNG.normal(size=(50, 7))
 
 
 CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
@@ -300,7 +398,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "stream: every load known": (lambda t: stream(t, "model.max_known_rows=2"), r"3 rows have known loads \(model.max_known_rows is 2\)"),
     "stream: one pass": (lambda t: stream(t, "trainer.max_epochs=1"), r"needs two passes .* set trainer.max_epochs to 2 or more"),
     "stream: in-memory model": (lambda t: stream(t, "model=shape_from_motion"), r"learns from a 'rotation' recording, which this data does not have"),
-    "stream: resume": (lambda t: (t / "last.ckpt").write_bytes(b"x") and stream(t, f"ckpt_path={t / 'last.ckpt'}"), r"cannot resume: drop ckpt_path"),
+    "stream: resume": (lambda t: stream(t, f"ckpt_path={lightning_checkpoint(t / 'last.ckpt')}"), r"cannot resume: drop ckpt_path"),
     # apply
     "missing calibration.json": (lambda t: apply_to(t, t / "none.json", "s0\n1\n"), r"calibration file .* does not exist"),
     "corrupt calibration.json": (corrupt_calibration, r"cannot be read as JSON"),
@@ -339,6 +437,114 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "rows: non-numeric CSV cell": (lambda t: row_file(t, "rows.csv", "a,b\n1,2\n3,x\n"), r"line 3 has a non-numeric cell"),
     "rows: not a matrix": (lambda t: row_file(t, "rows.npy", np.arange(5.0)), r"holds an array of shape \(5,\): save a C-order 2-D array"),
     "rows: rank above the columns": (pca_rank, r"model.rank is 7 but the file has 4 columns: choose 1 to 4"),
+    # config values of the wrong type or out of range (sfmnet/config_values.py), refused before anything is built
+    "text magnitude": (lambda t: calibrate(t, "data.magnitude=abc"), r"data.magnitude is 'abc': give a number > 0"),
+    "text mirror sign": (
+        lambda t: calibrate(t, "data.mirror_hint={row:0,axis:fz,sign:up}", known_loads=2),
+        r"data.mirror_hint is \{.*'sign': 'up'\}: give null or \{row: <0-based data row>, axis: <load column>, sign: 1 or -1\}",
+    ),
+    "mirror hint not a mapping": (lambda t: calibrate(t, "data.mirror_hint=3"), r"data.mirror_hint is 3: give null or \{row"),
+    "simulator's mirror hint not a bool": (simulated("data.mirror_hint=abc"), r"data.mirror_hint is 'abc': give null or .* \(a simulator's: true or false\)"),
+    "text mass in six-axis configurations": (
+        simulated("experiment=ft6dof", "data.configurations.0.mass=abc"),
+        r"data.configurations\[0\] is \{'mass': 'abc', .*\}: give \{mass: <kg, > 0>, centre_of_mass: \[x, y, z\]",
+    ),
+    "no six-axis configurations": (simulated("experiment=ft6dof", "data.configurations=[]"), r"data.configurations is \[\]: give one"),
+    "fractional rank": (simulated("model.rank=2.5"), r"model.rank is 2.5: give a whole number >= 1"),
+    "negative seed": (simulated("seed=-1"), r"seed is -1: give a whole number >= 0 and <= 4294967295"),
+    "no threads": (simulated("threads=0"), r"threads is 0: give a whole number >= 1"),
+    "metric weight 0": (simulated("model.metric_weight=0"), r"model.metric_weight is 0: give a number > 0 \(0 drops the metric constraint"),
+    "text metric weight": (simulated("model.metric_weight=abc"), r"model.metric_weight is 'abc': give a number > 0"),
+    "negative known-load tolerance": (lambda t: calibrate(t, "data.known_load_tolerance=-0.1"), r"data.known_load_tolerance is -0.1: give a number >= 0"),
+    "negative learning rate": (simulated("model.refinement=penalty", "optimizer.lr=-1"), r"optimizer.lr is -1: give a number > 0"),
+    "text in a simulator's error model": (simulated("data.errors.friction=abc"), r"data.errors.friction is 'abc': give a number"),
+    "PCA model on calibration data": (simulated("model=pca", "model.rank=2"), r"StreamingPCA learns from a 'rows' recording, which this data does not have"),
+    "fingertip: more known loads than axes": (simulated("data.known_loads=3"), r"data.known_loads is 3 but this sensor has 2 load axes: give 0 to 2"),
+    "fingertip: fewer channels than axes": (simulated("data.channels=1"), r"data.channels is 1: a sensor with 2 load axes needs at least 2"),
+    "unknown orientation law": (simulated("data.orientation_law=spiral"), r"data.orientation_law is 'spiral': use one of uniform"),
+    "six axes: too few channels": (simulated("experiment=ft6dof", "data.channels=3"), r"data.channels is 3: a six-axis sensor needs at least 6"),
+    "accelerator this machine lacks": (
+        simulated("trainer.accelerator=mps"),
+        r"Lightning cannot make a Trainer of these trainer settings \(.*MPSAccelerator.*\): check trainer.accelerator",
+    ),
+    **({} if torch.cuda.is_available() else {
+        "GPU on a machine without one": (simulated("trainer.accelerator=gpu"), r"\(No supported gpu backend found!\): check trainer.accelerator"),
+    }),
+    # array files given as data.path
+    "zero-byte .npy": (lambda t: calibrate_array(t, "s.npy", lambda p: p.write_bytes(b"")), r"s.npy cannot be read as .npy \(.*\): it is truncated or not a .npy file"),
+    "zero-byte .npz": (lambda t: calibrate_array(t, "s.npz", lambda p: p.write_bytes(b"")), r"s.npz cannot be read as .npz \(.*\): it is truncated"),
+    "empty .npy": (lambda t: calibrate_array(t, "s.npy", lambda p: np.save(p, np.zeros((0, 7)))), r"s.npy: its array is empty: save at least one row"),
+    "empty .npz": (lambda t: calibrate_array(t, "s.npz", session_columns()), r"s.npz holds no arrays: save one array per column"),
+    "uneven .npz": (
+        lambda t: calibrate_array(t, "s.npz", session_columns(s0=np.arange(10.0), s1=np.arange(7.0), fx=np.arange(10.0))),
+        r"s.npz holds columns of different lengths \(s0 10, s1 7, fx 10\): every column needs one value per row",
+    ),
+    "complex .npy": (lambda t: calibrate_array(t, "s.npy", lambda p: np.save(p, SEVEN_COLUMNS + 1j)), r"s.npy: its array holds complex numbers: save real values"),
+    "complex .npz": (lambda t: calibrate_array(t, "s.npz", session_columns(s0=SEVEN_COLUMNS[:, 0] * 1j)), r"s.npz: column 's0' holds complex numbers"),
+    "text .npz": (lambda t: calibrate_array(t, "s.npz", session_columns(s0=np.array(["a", "b"]))), r"s.npz: column 's0' holds <U1 values, not numbers"),
+    "stream: .npz": (
+        lambda t: array_file(t, "s.npz", session_columns(s0=np.arange(3.0)), "experiment=calibrate_stream", "data.magnitude=9.81"),
+        r"s.npz is an .npz archive, which cannot be streamed: save the rows as one 2-D .npy or a CSV",
+    ),
+    "stream: complex .npy": (
+        lambda t: array_file(t, "s.npy", lambda p: np.save(p, SEVEN_COLUMNS + 1j), "experiment=calibrate_stream", "data.magnitude=9.81"),
+        r"s.npy holds complex numbers: save real values",
+    ),
+    "rows: zero-byte .npy": (
+        lambda t: array_file(t, "rows.npy", lambda p: p.write_bytes(b""), "experiment=pca", "model.rank=2"),
+        r"rows.npy cannot be read as .npy \(.*\): it is truncated or not a .npy file",
+    ),
+    # checkpoints given as ckpt_path
+    "truncated checkpoint": (lambda t: resume_from(t, truncated_checkpoint), r"last.ckpt is not a checkpoint \(not the zip archive torch.save writes"),
+    "text file as checkpoint": (lambda t: resume_from(t, lambda p: p.write_text("epoch=3\n")), r"last.ckpt is not a checkpoint \(not the zip archive"),
+    "torch.save of a dict as checkpoint": (
+        lambda t: resume_from(t, lambda p: torch.save({"weights": torch.ones(2)}, p)),
+        r"last.ckpt is not a Lightning checkpoint \(it lacks state_dict, epoch, pytorch-lightning_version\)",
+    ),
+    "pickled module as checkpoint": (
+        lambda t: resume_from(t, lambda p: torch.save(torch.nn.Linear(2, 2), p)),
+        r"last.ckpt is not a Lightning checkpoint \(it holds pickled objects",
+    ),
+    # calibration files for apply
+    "text in a calibration matrix": (lambda t: calibration_json(t, '[["a", 1]]'), r"calibration.json: matrix holds something other than numbers"),
+    "NaN in a calibration matrix": (lambda t: calibration_json(t, "[[NaN, 1]]"), r"calibration.json: matrix holds NaN or infinite values"),
+    # file-system faults: one line naming the path and what to do, nothing left behind
+    "run directory is a file": (lambda t: run_into_file(t, "taken"), r"taken cannot be a folder: .*taken is a file; choose another run directory"),
+    "run directory under a file": (lambda t: run_into_file(t, "taken/run"), r"taken/run cannot be a folder: .*taken is a file"),
+    "read-only run directory": (read_only_run_dir, r"locked/run cannot be written: .*locked is read-only for you; choose another run directory"),
+    "apply: output is a folder": (lambda t: apply_into(t, t), r"output=.* is a folder: give the file to write, e.g. output=.*loads.csv"),
+    "apply: output in a read-only folder": (
+        lambda t: apply_into(t, t / "loads.csv", mock.patch("tempfile.mkstemp", denied)),
+        r"cannot write .*loads.csv \(Permission denied\): choose a folder you may write to",
+    ),
+    "apply: disk full": (
+        lambda t: apply_into(t, t / "loads.csv", mock.patch("os.replace", disk_full)),
+        r"cannot write .*loads.csv \(No space left on device\): the disk is full",
+    ),
+    # Hydra's grammar and sweeps (sfmnet/config_check.py), before Hydra starts
+    "non-ASCII letter in an unquoted path": (
+        overrides_of("experiment=calibrate_csv", "data.path=/data/sé.csv", "data.magnitude=1"),
+        r"""Hydra cannot read data.path=/data/sé.csv: .*; quote it: 'data.path="/data/sé.csv"'""",
+    ),
+    "'=' in an unquoted path": (overrides_of("data.path=/data/a=b.csv"), r"""quote it: 'data.path="/data/a=b.csv"'"""),
+    "'[' in an unquoted path": (overrides_of("data.path=/data/a[1].csv"), r"""quote it: 'data.path="/data/a\[1\].csv"'"""),
+    "'${' in a path": (
+        overrides_of("experiment=calibrate_csv", "data.path=/data/a${{x}}.csv", "data.magnitude=1"),
+        r"data.path refers to something that does not exist \(Interpolation key 'x' not found\): '\$\{' starts a reference",
+    ),
+    "'${' escaped in a path": (escaped_reference, r"data.path is '/data/a\$\{x\}.csv': Hydra reads '\$\{' as a reference to another key again"),
+    "several experiments without -m": (
+        overrides_of("experiment=fingertip,lord3dof"),
+        r"experiment=fingertip,lord3dof gives several values: add -m to run one job per value",
+    ),
+    "unknown experiment in a choice sweep": (
+        overrides_of("experiment=choice(fingertip,lord3)", sweep=True), r"unknown experiment 'lord3' \(did you mean 'lord3dof'\?\)",
+    ),
+    "run directory is a file, on the command line": (
+        lambda t: (t / "taken").write_text("") or overrides_of("hydra.run.dir={tmp}/taken")(t), r"taken cannot be a folder: .* choose another hydra.run.dir",
+    ),
+    "config value checked before Hydra starts": (overrides_of("threads=0"), r"threads is 0: give a whole number >= 1"),
+    "+ on a key that exists": (overrides_of("+seed=3"), r"Hydra cannot apply these overrides: Could not append to config. An item is already at 'seed'"),
     "unknown config key": (lambda t: (lambda: check_overrides(["experiment=lord3dof", "data.nosie_fraction=0.1"], config_dir())), r"unknown config key 'data.nosie_fraction' \(did you mean 'data.noise_fraction'\?\)"),
     "unknown experiment in a sweep": (lambda t: (lambda: check_overrides(["experiment=fingertip,lord3"], config_dir(), sweep=True)), r"unknown experiment 'lord3' \(did you mean 'lord3dof'\?\)"),
     "unknown experiment": (lambda t: (lambda: check_overrides(["experiment=lord3", "seed=1"], config_dir())), r"unknown experiment 'lord3'"),
@@ -355,6 +561,9 @@ def test_bad_input_is_refused_with_one_clear_message(case: str, tmp_path: Path):
     # Nothing a user made is overwritten: a refused apply leaves an existing output as it was.
     if (tmp_path / "loads.csv").exists() and case == "output path already exists":
         assert (tmp_path / "loads.csv").read_text() == "keep me\n"
+    # Nor is anything written: no loads, no half-written temporary file.
+    assert case == "output path already exists" or not (tmp_path / "loads.csv").exists()
+    assert not list(tmp_path.rglob("*.tmp"))
 
 
 def test_table_is_long_enough():
@@ -366,13 +575,25 @@ def test_table_is_long_enough():
     [
         (["train", "experiment=calibrate_csv", "data.path=/nonexistent/session.csv", "data.magnitude=9.81"], "error: /nonexistent/session.csv does not exist: check data.path"),
         (["apply", "calibration=/nonexistent/c.json", "input=/nonexistent/r.csv", "output=/tmp/never.csv"], "error: calibration file /nonexistent/c.json does not exist: give the calibration.json of a run"),
+        (["train", "hydra.run.dir={tmp}/taken"], "error: {tmp}/taken cannot be a folder: {tmp}/taken is a file; choose another hydra.run.dir"),
+        (["train", "data.path=/data/sé.csv"], "error: Hydra cannot read data.path=/data/sé.csv: "),
+        (["train", "trainer.accelerator=mps"], "error: Lightning cannot make a Trainer of these trainer settings ("),
+        (["apply", "calibration={tmp}/nan.json", "input={tmp}/readings.csv", "output={tmp}/loads.csv"], "error: calibration file {tmp}/nan.json: matrix holds NaN"),
     ],
-    ids=["train", "apply"],
+    ids=["train", "apply", "run-dir-is-a-file", "unquoted-non-ascii-path", "missing-accelerator", "apply-nan-calibration"],
 )
 def test_cli_prints_one_line_and_exits_2(args: list[str], message: str, tmp_path: Path):
-    if args[0] == "train":
+    """``message``: the start of the one line on stderr (``{tmp}``: the test's folder, where the files below lie)."""
+    (tmp_path / "taken").write_text("keep me\n")
+    (tmp_path / "nan.json").write_text('{"matrix": [[NaN, 1]], "offset": [0, 0], "channels": ["s0", "s1"], "axes": ["fx"]}')
+    (tmp_path / "readings.csv").write_text("s0,s1\n1,2\n")
+    args = [arg.format(tmp=tmp_path) for arg in args]
+    if args[0] == "train" and not any(arg.startswith("hydra.run.dir=") for arg in args):
         args = [*args, f"hydra.run.dir={tmp_path / 'run'}", "trainer.enable_progress_bar=false"]
     done = subprocess.run([sys.executable, "-m", "sfmnet", *args], cwd=REPO, capture_output=True, text=True, check=False)
     assert done.returncode == 2
-    assert done.stderr.strip().splitlines() == [message]
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message.format(tmp=tmp_path)), done.stderr
     assert "Traceback" not in done.stdout + done.stderr
+    assert (tmp_path / "taken").read_text() == "keep me\n"
+    assert not (tmp_path / "loads.csv").exists() and not (tmp_path / "run" / "calibration.json").exists()

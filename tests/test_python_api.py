@@ -196,6 +196,8 @@ def test_mirror_hint_from_python_with_n_minus_one_known_loads(tmp_path: Path):
         ({"magnitude": "abc"}, r"magnitude is 'abc': give a number"),
         ({"readings": np.ones((99, 6)) * 1j}, r"readings is complex"),
         ({"loads": None}, r"name the n load axes"),
+        # checked before the data module is built from it
+        ({"data": {"static_intervals": True, "static": {"threshold": "abc"}}}, r"data.static.threshold is 'abc': give a number > 0"),
     ],
 )
 def test_more_bad_input_is_one_line(tmp_path: Path, arguments: dict, message: str):

@@ -8,7 +8,7 @@ import pytest
 
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
-from tests.conftest import compose_config, experiment_overrides
+from tests.conftest import compose_config, experiment_overrides, lightning_checkpoint
 
 
 @pytest.mark.parametrize(
@@ -18,13 +18,14 @@ from tests.conftest import compose_config, experiment_overrides
         (["task=mapping"], r"task=mapping is not a task: use one of calibration, sensorimotor, pca"),
         (["experiment=mkv_pca", "eval.leave_one_group_out=true"], r"eval.leave_one_group_out is set but a sensorimotor run"),
         (["experiment=pca", "eval.leave_one_group_out=true"], r"eval.leave_one_group_out is set but a pca run"),
-        (["experiment=pca", "ckpt_path=last.ckpt"], r"ckpt_path is set but a pca run"),
+        (["experiment=pca", "ckpt_path={tmp}/last.ckpt"], r"ckpt_path is set but a pca run"),
     ],
 )
 def test_keys_a_task_cannot_honour_are_refused(tmp_path: Path, overrides: list[str], message: str):
     extra = experiment_overrides("pca", tmp_path) if "experiment=pca" in overrides else []
+    lightning_checkpoint(tmp_path / "last.ckpt")
     with pytest.raises(SfmnetError, match=message):
-        train(compose_config([*overrides, *extra]), tmp_path / "run")
+        train(compose_config([*(item.format(tmp=tmp_path) for item in overrides), *extra]), tmp_path / "run")
 
 
 def test_baselines_are_refused_for_pca(tmp_path: Path):

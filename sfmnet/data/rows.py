@@ -33,6 +33,8 @@ def npy_layout(path: Path) -> NpyLayout:
         read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
         shape, fortran_order, dtype = read_header(stream)
         offset = stream.tell()
+    if np.issubdtype(dtype, np.complexfloating):
+        raise SfmnetError(f"{path} holds complex numbers: save real values (e.g. the real part or the magnitude)")
     if fortran_order or len(shape) != 2:
         raise SfmnetError(
             f"{path} holds {'a Fortran-order' if fortran_order else 'an'} array of shape {shape}: "

@@ -116,6 +116,8 @@ class RowFileDataModule(L.LightningDataModule):
     ) -> None:
         super().__init__()
         self.path = Path(path)
+        if self.path.suffix == ".npz":
+            raise SfmnetError(f"{self.path} is an .npz archive, which cannot be streamed: save the rows as one 2-D .npy or a CSV")
         self.columns = columns
         self.channel_columns = list(channel_columns) if channel_columns else None
         self.block_rows = block_rows
@@ -137,7 +139,7 @@ class RowFileDataModule(L.LightningDataModule):
         try:
             layout = npy_layout(source)
         except (ValueError, OSError) as error:
-            raise SfmnetError(f"{source} cannot be read as .npy: {error}") from None
+            raise SfmnetError(f"{source} cannot be read as .npy ({error}): it is truncated or not a .npy file; check data.path") from None
         rows, p = layout.shape
         if rows < 2 or not np.issubdtype(layout.dtype, np.number):
             raise SfmnetError(f"{source} holds a {layout.dtype} array of shape {layout.shape}: give a 2-D numeric array, one row per sample")

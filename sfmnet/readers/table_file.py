@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -72,19 +73,19 @@ def read_table(path: Path, columns: list[str] | None = None, option: str = "data
     path = check_input_file(path, option, "a file (.csv, .npy or .npz)")
     try:
         if path.suffix == ".npy":
-            return _from_array(path, np.load(path, allow_pickle=False), columns)
+            return _from_array(path, real_values(path, np.load(path, allow_pickle=False), "its array"), columns)
         if path.suffix == ".npz":
-            with np.load(path, allow_pickle=False) as archive:
-                return Table(path, {k: np.asarray(archive[k], dtype=np.float64).ravel() for k in archive.files}, {})
+            return _from_archive(path)
         if path.suffix in WHITESPACE_SUFFIXES:
             return _read_whitespace(path, columns)
         return _read_csv(path)
     except PermissionError:
         raise SfmnetError(f"{path} cannot be read (permission denied): check the file's permissions") from None
-    except (ValueError, OSError) as error:
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as error:
         if isinstance(error, SfmnetError):
             raise
-        raise SfmnetError(f"{path} cannot be read as {path.suffix or 'CSV'}: {error}") from None
+        kind = path.suffix or "CSV"
+        raise SfmnetError(f"{path} cannot be read as {kind} ({error}): it is truncated or not a {kind} file; check data.path") from None
 
 
 def _from_array(path: Path, array: np.ndarray, columns: list[str] | None) -> Table:
@@ -95,6 +96,30 @@ def _from_array(path: Path, array: np.ndarray, columns: list[str] | None) -> Tab
             f"{path} has {array.shape[1]} columns: name them all with data.columns=[...] ({len(columns or [])} given)"
         )
     return Table(path, {name: array[:, i].astype(np.float64) for i, name in enumerate(columns)}, {})
+
+
+def _from_archive(path: Path) -> Table:
+    """An ``.npz`` of one array per column (a 2-D one is flattened), every column as long as the others."""
+    with np.load(path, allow_pickle=False) as archive:
+        arrays = {name: real_values(path, archive[name], f"column '{name}'").ravel() for name in archive.files}
+    if not arrays:
+        raise SfmnetError(f"{path} holds no arrays: save one array per column, e.g. np.savez(path, s0=..., fx=...)")
+    lengths = {name: len(values) for name, values in arrays.items()}
+    if len(set(lengths.values())) > 1:
+        shown = ", ".join(f"{name} {length}" for name, length in lengths.items())
+        raise SfmnetError(f"{path} holds columns of different lengths ({shown}): every column needs one value per row")
+    return Table(path, {name: values.astype(np.float64) for name, values in arrays.items()}, {})
+
+
+def real_values(path: Path, array: np.ndarray, what: str) -> np.ndarray:
+    """``array`` if it holds at least one real number (or bool); else one line naming ``what`` of ``path``."""
+    if np.iscomplexobj(array):
+        raise SfmnetError(f"{path}: {what} holds complex numbers: save real values (e.g. the real part or the magnitude)")
+    if not (np.issubdtype(array.dtype, np.number) or array.dtype == np.bool_):
+        raise SfmnetError(f"{path}: {what} holds {array.dtype} values, not numbers: save numeric columns")
+    if array.size == 0:
+        raise SfmnetError(f"{path}: {what} is empty: save at least one row")
+    return array
 
 
 WHITESPACE_SUFFIXES = (".txt", ".dat", ".tsv")

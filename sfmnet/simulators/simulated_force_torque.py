@@ -6,6 +6,7 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
+from sfmnet.errors import SfmnetError
 from sfmnet.simulators.simulation import DTYPE, LinearSensor, random_directions
 from sfmnet.linalg.wrench import STANDARD_GRAVITY, wrench_map
 
@@ -61,6 +62,12 @@ class ForceTorqueSensorDataModule(CalibrationDataModule):
         batch_size: int | None = None,
     ) -> None:
         super().__init__(batch_size=batch_size)
+        if channels < len(WRENCH_AXES):
+            raise SfmnetError(f"data.channels is {channels}: a six-axis sensor needs at least {len(WRENCH_AXES)} channels")
+        if known_per_configuration > samples:
+            raise SfmnetError(
+                f"data.known_per_configuration is {known_per_configuration} but data.samples is {samples}: give at most {samples}"
+            )
         self.configurations = configurations
         self.channels = channels
         self.force_gain = force_gain

@@ -9,8 +9,10 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData
+from sfmnet.errors import SfmnetError
 from sfmnet.simulators.simulation import (
     DTYPE,
+    ORIENTATION_LAWS,
     LinearSensor,
     LoadApplicationErrors,
     evaluation_sweeps,
@@ -77,6 +79,15 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         batch_size: int | None = None,
     ) -> None:
         super().__init__(batch_size=batch_size)
+        n = len(self.axes)
+        if known_loads > n:
+            raise SfmnetError(f"data.known_loads is {known_loads} but this sensor has {n} load axes: give 0 to {n}")
+        if motion_span is not None and motion_span > n:
+            raise SfmnetError(f"data.motion_span is {motion_span} but this sensor has {n} load axes: give 1 to {n} (null: all)")
+        if orientation_law not in ORIENTATION_LAWS:
+            raise SfmnetError(f"data.orientation_law is '{orientation_law}': use one of {', '.join(ORIENTATION_LAWS)}")
+        if orientation_law == "poses" and samples < poses:
+            raise SfmnetError(f"data.samples is {samples}, too few to visit data.poses={poses} poses: give at least {poses}")
         self.magnitude = magnitude
         self.samples = samples
         self.known_loads = known_loads
@@ -94,6 +105,13 @@ class SimulatedSensorDataModule(CalibrationDataModule):
         self.evaluation_masses = list(evaluation_masses or [magnitude])
         self.samples_per_turn = samples_per_turn
         self.seed = seed
+
+    def require_channels(self, channels: int) -> None:
+        """A sensor with fewer channels than load axes cannot be calibrated."""
+        if channels < len(self.axes):
+            raise SfmnetError(
+                f"data.channels is {channels}: a sensor with {len(self.axes)} load axes needs at least {len(self.axes)} channels"
+            )
 
     @abstractmethod
     def true_shape(self, generator: torch.Generator) -> torch.Tensor:
@@ -167,6 +185,7 @@ class FingertipDataModule(SimulatedSensorDataModule):
         **kwargs,
     ) -> None:
         super().__init__(**kwargs)
+        self.require_channels(channels)
         self.channels = channels
         self.gain = gain
         self.gain_spread = gain_spread
@@ -191,6 +210,7 @@ class ForceSensor3DataModule(SimulatedSensorDataModule):
 
     def __init__(self, channels: int = 6, gain: float = 0.1, gain_spread: float = 0.1, **kwargs) -> None:
         super().__init__(**kwargs)
+        self.require_channels(channels)
         self.channels = channels
         self.gain = gain
         self.gain_spread = gain_spread

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import lightning as L
 import torch
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.trainer.states import TrainerStatus
 from omegaconf import DictConfig
@@ -44,7 +45,7 @@ def fit(
             # A dev run of a fit in passes: one block a pass, as many passes as a result needs.
             trainer_options.update(fast_dev_run=False, limit_train_batches=1, max_epochs=model.dev_run_passes)
     module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer), true_matrix=true_matrix)
-    trainer: L.Trainer = instantiate(cfg.trainer, **trainer_options)
+    trainer = build_trainer(cfg, **trainer_options)
     try:
         trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
     except SystemExit:
@@ -63,6 +64,19 @@ def resume_hint(trainer: L.Trainer) -> str:
     if last is None or not last.is_file():
         return f"{stopped}, before its first checkpoint: run it again from the start"
     return f"{stopped}: resume with ckpt_path={last} (and a new hydra.run.dir); the result is the uninterrupted run's"
+
+
+def build_trainer(cfg: DictConfig, **trainer_options) -> L.Trainer:
+    """A Trainer from ``cfg.trainer``; settings Lightning refuses (an accelerator this machine lacks) are one line."""
+    try:
+        return instantiate(cfg.trainer, **trainer_options)
+    except InstantiationException as error:
+        cause = error.__cause__ or error
+        reason = " ".join(str(cause).split()) or type(cause).__name__
+        raise SfmnetError(
+            f"Lightning cannot make a Trainer of these trainer settings ({reason}): check trainer.accelerator (cpu runs "
+            "everywhere), trainer.devices, trainer.strategy and trainer.precision"
+        ) from None
 
 
 def refine_in_process(

@@ -9,20 +9,25 @@ files its run directory holds.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import lightning as L
 import torch
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig
 
+from sfmnet.cli import user_error
+from sfmnet.config_values import check_config
 from sfmnet.errors import SfmnetError
-from sfmnet.io import write_json_atomic
+from sfmnet.io import check_writable_dir, write_json_atomic
 from sfmnet.models.contracts import Learner
 from sfmnet.tasks.base import FittedMethod, MethodResult, Task
 from sfmnet.tasks.calibration import CalibrationTask
@@ -33,6 +38,7 @@ from sfmnet.training.fitting import fit
 
 RESULT_FILES = ("metrics.json", "calibration.json", "learner.npz", "pca.npz")
 TASKS: dict[str, type[Task]] = {task.kind: task for task in (CalibrationTask, SensorimotorTask, PcaTask)}
+Metrics = dict[str, float]
 
 
 def quiet_lightning() -> None:
@@ -64,18 +70,32 @@ def build_task(cfg: DictConfig, datamodule: L.LightningDataModule) -> Task:
     return TASKS[kind](cfg)
 
 
-def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | None = None) -> dict[str, float]:
+def unwrapping_user_errors(run: Callable[..., Metrics]) -> Callable[..., Metrics]:
+    """``run``, raising the :class:`SfmnetError` itself where Hydra wrapped it while building a data module or model."""
+
+    @functools.wraps(run)
+    def wrapper(*args, **kwargs) -> Metrics:
+        try:
+            return run(*args, **kwargs)
+        except InstantiationException as error:
+            cause = user_error(error)
+            if cause is None:
+                raise
+            raise cause from None
+
+    return wrapper
+
+
+@unwrapping_user_errors
+def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | None = None) -> Metrics:
     """Run the configured experiment into ``run_dir``; return the flat metrics also written to ``metrics.json``.
 
     ``datamodule``: built by the caller (the Python API's arrays) instead of from ``cfg.data``.
     """
     run_dir = Path(run_dir)
     refuse_existing_results(run_dir)
-    max_epochs = cfg.trainer.get("max_epochs")
-    if max_epochs is not None and (isinstance(max_epochs, bool) or not isinstance(max_epochs, int) or max_epochs < 0):
-        raise SfmnetError(
-            f"trainer.max_epochs is {max_epochs!r}: give a whole number >= 0 (Lightning's -1, no limit, never ends a fit)"
-        )
+    check_writable_dir(run_dir, "run directory")
+    check_config(cfg)
     quiet_lightning()
     torch.set_num_threads(cfg.threads)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
