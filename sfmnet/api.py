@@ -201,11 +201,13 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
     from sfmnet.cli import user_error
     from sfmnet.config_values import check_config
     from sfmnet.training.run import train
+    from sfmnet.training.run_directory import claim_run_dir, release_run_dir
 
     with contextlib.ExitStack() as stack:
         if run_dir is None:
             run_dir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="sfmnet-"))) / "run"
-        check_run_dir(Path(run_dir))
+        claim_run_dir(Path(run_dir), "run_dir")
+        stack.callback(release_run_dir, Path(run_dir))
         if not verbose:
             stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
         # The data module is built here, before train() checks the config: check it first.
@@ -220,14 +222,3 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
                 raise
             raise cause from None
         return Calibration.load(Path(run_dir) / "calibration.json")
-
-
-def check_run_dir(run_dir: Path) -> None:
-    """A run directory must be new or empty, and creatable (no file where a folder is needed)."""
-    if run_dir.is_dir():
-        if any(run_dir.iterdir()):
-            raise SfmnetError(f"run directory {run_dir} already holds files: give a new run_dir so nothing is overwritten")
-        return
-    for folder in [run_dir, *run_dir.parents]:
-        if folder.exists() and not folder.is_dir():
-            raise SfmnetError(f"run directory {run_dir} cannot be made: {folder} is a file; give another run_dir")

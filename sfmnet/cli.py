@@ -31,6 +31,9 @@ errors print one line and exit with status 2; set SFMNET_DEBUG=1 for the full tr
 """
 
 
+MULTIRUN_FLAGS = ("-m", "--multirun")
+
+
 def config_dir() -> str:
     """The configs: ``conf/`` of a checkout, else the copy a wheel installs as ``sfmnet/conf``."""
     package = Path(__file__).resolve().parent
@@ -67,24 +70,11 @@ def exit_on_user_error(action: Callable[[], object]) -> None:
         sys.exit(cause.exit_status if interrupted else 2)
 
 
-def refuse_used_run_dir(overrides: list[str]) -> None:
-    """A run never writes into a directory that already holds files (a DDP worker re-enters its own)."""
-    if "-m" in overrides or "--multirun" in overrides:
-        return
-    for item in overrides:
-        if item.startswith("hydra.run.dir="):
-            run_dir = Path(item.split("=", 1)[1])
-            if run_dir.is_dir() and any(run_dir.iterdir()):
-                raise SfmnetError(
-                    f"run directory {run_dir} already holds files: give a new hydra.run.dir so nothing is overwritten"
-                )
-
-
 def check_train_arguments(args: list[str]) -> None:
-    """Typos and used run directories, caught before Hydra starts (a DDP worker re-enters checked)."""
+    """Typos and bad values, caught before Hydra starts (a DDP worker re-enters checked); the run directory is claimed
+    on Hydra's parsed config (:mod:`sfmnet.training.run_directory`)."""
     if os.environ.get("LOCAL_RANK", "0") != "0" or "--help" in args or "-h" in args:
         return
-    refuse_used_run_dir(args)
     from sfmnet.config_check import check_overrides
 
     sweep = "-m" in args or "--multirun" in args
@@ -127,5 +117,8 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(2)
     if command == "train":
         exit_on_user_error(lambda: check_train_arguments(args))
+    if command == "train" and any(flag in args for flag in MULTIRUN_FLAGS):
+        # Hydra's parser takes -m only before or after all the overrides, not among them.
+        args = ["-m", *(a for a in args if a not in MULTIRUN_FLAGS)]
     sys.argv = [sys.argv[0], *args]
     COMMANDS[command]()

@@ -398,7 +398,6 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "stream: every load known": (lambda t: stream(t, "model.max_known_rows=2"), r"3 rows have known loads \(model.max_known_rows is 2\)"),
     "stream: one pass": (lambda t: stream(t, "trainer.max_epochs=1"), r"needs two passes .* set trainer.max_epochs to 2 or more"),
     "stream: in-memory model": (lambda t: stream(t, "model=shape_from_motion"), r"learns from a 'rotation' recording, which this data does not have"),
-    "stream: resume": (lambda t: stream(t, f"ckpt_path={lightning_checkpoint(t / 'last.ckpt')}"), r"cannot resume: drop ckpt_path"),
     # apply
     "missing calibration.json": (lambda t: apply_to(t, t / "none.json", "s0\n1\n"), r"calibration file .* does not exist"),
     "corrupt calibration.json": (corrupt_calibration, r"cannot be read as JSON"),

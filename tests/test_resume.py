@@ -1,54 +1,118 @@
-"""Nothing lost: a run killed partway resumes from its last checkpoint to the uninterrupted result; same seed, same bits."""
+"""Nothing lost: a run killed or stopped partway resumes from its last checkpoint to the uninterrupted result, bit for bit.
+
+The killed runs send themselves the signal at the end of an epoch (``tests/signal_at_epoch.py``),
+before that epoch's checkpoint is written, so the fit is cut off mid-way at a known point.
+"""
 
 from __future__ import annotations
 
 import json
-import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
+import numpy as np
+import torch
+
 from sfmnet.training.run import train
-from tests.conftest import REPO, compose_config
+from tests.conftest import REPO, compose_config, write_session
 
-RUN = ["experiment=lord3dof", "data.samples=5000", "trainer.max_epochs=20", "trainer.enable_progress_bar=false"]
-
-
-def sfmnet(*args: str) -> list[str]:
-    return [sys.executable, "-m", "sfmnet", "train", *RUN, *args]
+# Two L-BFGS iterations an epoch: the fit is still moving when it is killed, its optimiser history in play.
+CALIBRATION = ["experiment=lord3dof", "data.samples=300", "model.refinement=marginal", "optimizer.max_iter=2", "trainer.max_epochs=8"]
+EIGENSPACE = ["experiment=mkv_pca", "trainer.max_epochs=6"]
 
 
-def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path: Path):
-    killed = tmp_path / "killed"
-    process = subprocess.Popen(sfmnet(f"hydra.run.dir={killed}"), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    checkpoint = killed / "checkpoints" / "shape_from_motion" / "last.ckpt"
-    deadline = time.monotonic() + 120
-    while not checkpoint.is_file() and process.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.02)
-    process.send_signal(signal.SIGKILL)
-    process.wait()
-    assert checkpoint.is_file(), "no checkpoint was written before the kill"
-    assert not (killed / "calibration.json").exists(), "the run finished before it could be killed"
+def sfmnet(run_dir: Path, *args: str) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-m", "sfmnet", "train", f"hydra.run.dir={run_dir}", "trainer.enable_progress_bar=false", *args]
+    return subprocess.run(command, cwd=REPO, capture_output=True, text=True, check=False)
 
-    resumed = subprocess.run(
-        sfmnet(f"hydra.run.dir={tmp_path / 'resumed'}", f"ckpt_path={checkpoint}"),
-        cwd=REPO, capture_output=True, text=True, check=False, env={**os.environ},
-    )
+
+def signal_at(epoch: int, signal: str) -> list[str]:
+    return [
+        "+callbacks.signal._target_=tests.signal_at_epoch.SignalAtEpoch",
+        f"+callbacks.signal.epoch={epoch}",
+        f"+callbacks.signal.signal={signal}",
+    ]
+
+
+def killed_then_resumed(tmp_path: Path, run: list[str], method: str, epoch: int) -> subprocess.CompletedProcess:
+    """SIGKILL ``run`` at the end of ``epoch``; resume it from the newest checkpoint into ``tmp_path / "resumed"``."""
+    killed = sfmnet(tmp_path / "killed", *run, *signal_at(epoch, "SIGKILL"))
+    assert killed.returncode == -9, killed.stderr[-2000:]
+    checkpoints = tmp_path / "killed" / "checkpoints" / method
+    # Every finished epoch left its checkpoint; the run stopped before its results.
+    assert sorted(p.name for p in checkpoints.glob("epoch*.ckpt")) == [f"epoch{e:03d}.ckpt" for e in range(epoch)]
+    assert not (tmp_path / "killed" / "metrics.json").exists()
+    last = checkpoints / "last.ckpt"
+    assert torch.load(last, weights_only=False)["epoch"] == epoch - 1
+    resumed = sfmnet(tmp_path / "resumed", *run, f"ckpt_path={last}")
     assert resumed.returncode == 0, resumed.stderr[-2000:]
-    whole = subprocess.run(sfmnet(f"hydra.run.dir={tmp_path / 'whole'}"), cwd=REPO, capture_output=True, check=False)
-    assert whole.returncode == 0
+    return resumed
+
+
+def test_calibration_killed_mid_fit_resumes_bit_for_bit(tmp_path: Path):
+    killed_then_resumed(tmp_path, CALIBRATION, "shape_from_motion", epoch=4)
+    resumed = tmp_path / "resumed"
+    whole = sfmnet(tmp_path / "whole", *CALIBRATION)
+    assert whole.returncode == 0, whole.stderr[-2000:]
+    first = json.loads((resumed / "calibration.json").read_text())
+    second = json.loads((tmp_path / "whole" / "calibration.json").read_text())
+    for key in ("matrix", "offset", "matrix_std"):
+        assert first[key] == second[key], key
+    assert json.loads((resumed / "metrics.json").read_text())["epochs"] == 8
+
+
+def test_eigenspace_learner_killed_mid_fit_resumes_bit_for_bit(tmp_path: Path):
+    killed_then_resumed(tmp_path, EIGENSPACE, "eigenspace", epoch=3)
+    resumed = tmp_path / "resumed"
+    whole = sfmnet(tmp_path / "whole", *EIGENSPACE)
+    assert whole.returncode == 0, whole.stderr[-2000:]
+    with np.load(resumed / "learner.npz") as first, np.load(tmp_path / "whole" / "learner.npz") as second:
+        assert sorted(first.files) == sorted(second.files)
+        for name in first.files:
+            assert np.array_equal(first[name], second[name]), name
+
+
+def test_streamed_fit_killed_between_passes_resumes_bit_for_bit(tmp_path: Path):
+    session = tmp_path / "session.csv"
+    write_session(session, known_loads=2)
+    run = [
+        "experiment=calibrate_stream", f"data.path={session}", "data.magnitude=9.81", "data.time_column=time",
+        "data.mirror_hint={row: 0, axis: fz, sign: 1}", "data.block_rows=50",
+    ]
+    # Killed after the moments, the metric constraint and two alternation rounds: the resumed fit keeps them.
+    says = killed_then_resumed(tmp_path, run, "streamed_shape_from_motion", epoch=4).stdout
+    assert "keeps the passes it finished and reads the one it was in again from its start" in says
+    resumed = tmp_path / "resumed"
+    whole = sfmnet(tmp_path / "whole", *run)
+    assert whole.returncode == 0, whole.stderr[-2000:]
+    first = json.loads((resumed / "calibration.json").read_text())
+    second = json.loads((tmp_path / "whole" / "calibration.json").read_text())
+    for key in ("matrix", "offset", "matrix_std"):
+        assert first[key] == second[key], key
+    assert json.loads((resumed / "metrics.json").read_text())["epochs"] == json.loads((tmp_path / "whole" / "metrics.json").read_text())["epochs"]
+
+
+def test_ctrl_c_names_the_checkpoint_to_resume_from(tmp_path: Path):
+    run = [*CALIBRATION, "model.refinement=penalty"]
+    stopped = sfmnet(tmp_path / "stopped", *run, *signal_at(3, "SIGINT"))
+    last = tmp_path / "stopped" / "checkpoints" / "shape_from_motion" / "last.ckpt"
+    assert stopped.returncode == 130
+    assert "Traceback" not in stopped.stderr
+    assert stopped.stderr.strip().splitlines() == [
+        f"interrupted: ShapeFromMotion stopped in epoch 4: resume with ckpt_path={last} (and a new hydra.run.dir); "
+        "the result is the uninterrupted run's"
+    ]
+    resumed = sfmnet(tmp_path / "resumed", *run, f"ckpt_path={last}")
+    whole = sfmnet(tmp_path / "whole", *run)
+    assert resumed.returncode == whole.returncode == 0, resumed.stderr[-2000:] + whole.stderr[-2000:]
     first = json.loads((tmp_path / "resumed" / "calibration.json").read_text())
     second = json.loads((tmp_path / "whole" / "calibration.json").read_text())
     assert first["matrix"] == second["matrix"] and first["offset"] == second["offset"]
 
 
 def test_missing_checkpoint_is_one_clear_error(tmp_path: Path):
-    done = subprocess.run(
-        sfmnet(f"hydra.run.dir={tmp_path / 'run'}", f"ckpt_path={tmp_path / 'nope.ckpt'}"),
-        cwd=REPO, capture_output=True, text=True, check=False,
-    )
+    done = sfmnet(tmp_path / "run", *CALIBRATION, f"ckpt_path={tmp_path / 'nope.ckpt'}")
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [f"error: ckpt_path {tmp_path / 'nope.ckpt'} is not a file: give a run's checkpoints/<method>/last.ckpt"]
 

@@ -33,6 +33,14 @@ class AndersonAcceleration:
         self.best = float("inf")
         self.step_norm = float("inf")
 
+    def state_dict(self) -> dict[str, object]:
+        """The history, as tensors and numbers (what a checkpoint keeps)."""
+        return {"iterates": list(self.iterates), "residuals": list(self.residuals), "best": self.best, "step_norm": self.step_norm}
+
+    def load_state_dict(self, state: dict[str, object]) -> None:
+        self.iterates, self.residuals = list(state["iterates"]), list(state["residuals"])
+        self.best, self.step_norm = float(state["best"]), float(state["step_norm"])
+
     def step(self, current: torch.Tensor, mapped: torch.Tensor) -> torch.Tensor:
         """The next iterate (shape of ``current``) from ``x = current`` and ``G(x) = mapped``."""
         residual = (mapped - current).flatten()

@@ -31,6 +31,8 @@ from sfmnet.models.contracts import FitMode
 from sfmnet.models.linear_calibrator import LinearCalibrator
 
 REFINEMENTS = ("alternation", "closed_form")
+# Rounds the alternation mixes: one per pass, so a longer memory than in memory pays.
+ANDERSON_HISTORY = 10
 
 
 class StreamedShapeFromMotion(LinearCalibrator):
@@ -91,6 +93,31 @@ class StreamedShapeFromMotion(LinearCalibrator):
 
     def fit_mode(self) -> FitMode:
         return FitMode.PASSES
+
+    # What finished passes leave for the next ones. A checkpoint (taken at the end of a pass) keeps
+    # it, so a resumed fit keeps the passes it finished and reads the interrupted one again.
+    PASS_STATE = (
+        "passes", "converged", "sample", "first_partial_row", "known", "centre", "singular_values", "affine_shape",
+        "projection", "coverage", "frame_fixed", "reading_scale", "load_scale",
+    )
+
+    def get_extra_state(self) -> dict[str, object]:
+        state: dict[str, object] = {name: getattr(self, name) for name in self.PASS_STATE if hasattr(self, name)}
+        if hasattr(self, "moments"):
+            state["moments"] = {name: getattr(self.moments, name) for name in ("shift", "count", "total", "cross")}
+        if hasattr(self, "acceleration"):
+            state["acceleration"] = self.acceleration.state_dict()
+        return state
+
+    def set_extra_state(self, state: dict[str, object]) -> None:
+        for name in self.PASS_STATE:
+            if name in state:
+                setattr(self, name, state[name])
+        if "moments" in state:
+            self.moments = Moments(**state["moments"])
+        if "acceleration" in state:
+            self.acceleration = AndersonAcceleration(history=ANDERSON_HISTORY)
+            self.acceleration.load_state_dict(state["acceleration"])
 
     @property
     def rank(self) -> int:
@@ -261,7 +288,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         motion_gram = matrix @ self.moments.cross_about(offset) @ matrix.T
         self.coverage = require_coverage(motion_gram, float(self.moments.count), self.data.magnitude)
         self.orient()
-        self.acceleration = AndersonAcceleration(history=10)
+        self.acceleration = AndersonAcceleration(history=ANDERSON_HISTORY)
         self.converged = self.refinement == "closed_form"
 
     def orient(self) -> None:

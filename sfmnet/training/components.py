@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 from omegaconf import DictConfig
 
 from sfmnet.io import save_figure_atomic
-from sfmnet.models.contracts import FitMode, Learner
+from sfmnet.models.contracts import Learner
 
 
 def build_logger(cfg: DictConfig, run_dir: Path, version: str) -> Logger | None:
@@ -23,13 +23,12 @@ def build_logger(cfg: DictConfig, run_dir: Path, version: str) -> Logger | None:
 
 
 def build_callbacks(cfg: DictConfig, run_dir: Path, method: str, model: Learner) -> list[Callback]:
-    """``cfg.callbacks`` for fitting ``method``: the checkpoint into ``checkpoints/<method>``, unless the model is
-    fitted in passes over a file (its sums are not in a checkpoint); the progress bar only where the trainer shows one."""
+    """``cfg.callbacks`` for fitting ``method``: the checkpoint into ``checkpoints/<method>``; the progress bar only
+    where the trainer shows one."""
     callbacks = []
     for key, callback_cfg in (cfg.get("callbacks") or {}).items():
         if key == "model_checkpoint":
-            if model.fit_mode() is not FitMode.PASSES:
-                callbacks.append(instantiate(callback_cfg, dirpath=str(run_dir / "checkpoints" / method)))
+            callbacks.append(instantiate(callback_cfg, dirpath=str(run_dir / "checkpoints" / method)))
         elif key == "progress_bar":
             if cfg.trainer.get("enable_progress_bar", True):
                 callbacks.append(instantiate(callback_cfg))

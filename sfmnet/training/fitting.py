@@ -37,7 +37,8 @@ def fit(
     if ckpt_path is not None and not Path(ckpt_path).is_file():
         raise SfmnetError(f"ckpt_path {ckpt_path} is not a file: give a run's checkpoints/<method>/last.ckpt")
     if ckpt_path is not None and passes:
-        raise SfmnetError("a streamed fit keeps its sums outside checkpoints and cannot resume: drop ckpt_path and rerun it")
+        print(f"resuming from {ckpt_path}: a fit in passes over a file keeps the passes it finished and reads the one "
+              "it was in again from its start")
     if passes:
         # The row data module deals its blocks to processes itself; a distributed sampler would split them again.
         trainer_options["use_distributed_sampler"] = False
