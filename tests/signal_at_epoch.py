@@ -21,4 +21,7 @@ class SignalAtEpoch(Callback):
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.current_epoch == self.epoch:
+            if self.signal == signals.SIGINT:
+                # As in a terminal: a test run in the background inherits SIGINT ignored.
+                signals.signal(signals.SIGINT, signals.default_int_handler)
             os.kill(os.getpid(), self.signal)
