@@ -3,8 +3,8 @@
 The same algorithm as ``experiment=calibrate_csv model.refinement=alternation`` for one mass
 with offsets (method §2-5): the centred truncated SVD, the ellipsoid fit in the load subspace
 (the metric constraint), the frame from the known loads by orthogonal Procrustes, the
-Anderson-accelerated alternation (each row's unit direction by Newton's method) to a 1e-9
-relative step, and the
+Anderson-accelerated alternation (each row's unit direction by Newton's method, each round
+ending with the rotation that fits the known loads) to a 1e-9 relative step, and the
 Cramer-Rao error bars of the matrix (the per-row directions eliminated). No checks,
 diagnostics, figures or files: a lower bound on what the numerics cost. Run as a script it
 calibrates a bench session file and prints the matrix and the seconds as JSON:
@@ -72,17 +72,40 @@ def unit_directions(centred: np.ndarray, shape: np.ndarray) -> np.ndarray:
     return directions / np.linalg.norm(directions, axis=1, keepdims=True)
 
 
+def known_load_rotation(known_readings: np.ndarray, known_loads: np.ndarray, shape: np.ndarray) -> np.ndarray:
+    """The rotation ``R`` minimising ``sum_k |y_k - l_k R S|^2`` (as ``sfmnet.linalg.frame.known_load_rotation``):
+    Gauss-Newton steps ``R <- polar(I + W) R`` on the skew part ``W``."""
+    n = shape.shape[0]
+    rows, cols = np.triu_indices(n, 1)
+    generators = np.zeros((len(rows), n, n))
+    generators[np.arange(len(rows)), rows, cols] = 1.0
+    generators[np.arange(len(rows)), cols, rows] = -1.0
+    rotation = np.eye(n)
+    for _ in range(20):
+        turned = rotation @ shape
+        residual = (known_readings - known_loads @ turned).ravel()
+        jacobian = np.stack([(known_loads @ g @ turned).ravel() for g in generators], axis=1)
+        step = np.linalg.lstsq(jacobian, residual, rcond=None)[0]
+        u, _, vt = np.linalg.svd(np.eye(n) + np.einsum("a,aij->ij", step, generators))
+        rotation = u @ vt @ rotation
+        if np.linalg.norm(step) <= 1e-15:
+            break
+    return rotation
+
+
 def alternation_round(
     readings: np.ndarray, known: np.ndarray, loads: np.ndarray, magnitude: float, parameters: np.ndarray
 ) -> np.ndarray:
-    """One round on ``[S; o]``: unit directions, then least squares of the readings on ``[M 1]``."""
+    """One round on ``[S; o]``: unit directions, least squares of the readings on ``[M 1]``, then the known loads' frame."""
     shape, offset = parameters[:-1], parameters[-1]
     motion = magnitude * unit_directions(readings - offset, magnitude * shape)
     motion[known] = loads[known]
     motion_mean, readings_mean = motion.mean(axis=0), readings.mean(axis=0)
     centred = motion - motion_mean
     new_shape = np.linalg.solve(centred.T @ centred, centred.T @ (readings - readings_mean))
-    return np.vstack([new_shape, readings_mean - motion_mean @ new_shape])
+    new_offset = readings_mean - motion_mean @ new_shape
+    new_shape = known_load_rotation(readings[known] - new_offset, loads[known], new_shape) @ new_shape
+    return np.vstack([new_shape, new_offset])
 
 
 def alternation(
