@@ -7,6 +7,8 @@
 
 from __future__ import annotations
 
+import math
+
 from typing import Any
 
 import numpy as np
@@ -77,16 +79,27 @@ class CommandLearner:
         from hydra.utils import instantiate
 
         from sfmnet.data.sensorimotor import Command, Episode, FixedSensorimotorDataModule, SensorimotorData, label_indices
+        from omegaconf import OmegaConf
+
+        from sfmnet.cli import user_error
+        from sfmnet.config_values import check_config
         from sfmnet.readers.sensorimotor_csv import sort_key
         from sfmnet.training.fitting import fit
+        from sfmnet.training.run import quiet_lightning
 
         if self.learner not in LEARNERS:
             raise SfmnetError(f"learner is '{self.learner}': use one of {', '.join(LEARNERS)}")
-        readings = as_matrix(sensors, "sensors")
+        readings = finite_matrix(sensors, "sensors")
         labels = np.asarray(commands, dtype=object)
         labels = labels[:, None] if labels.ndim == 1 else labels
         if labels.ndim != 2 or len(labels) != len(readings):
             raise SfmnetError(f"commands has shape {labels.shape}: give one row of command labels per sensor row ({len(readings)})")
+        missing = [(r, c) for r, c in zip(*np.nonzero(np.vectorize(is_missing, otypes=[bool])(labels)))]
+        if missing:
+            raise SfmnetError(
+                f"commands has {len(missing)} missing labels (None or NaN; first: row {missing[0][0]}, column "
+                f"{missing[0][1]}): every row needs its command, so drop those rows or label them"
+            )
         # The command line's label order (numbers first), so both fit the same columns.
         alphabets = [sorted(set(labels[:, i].tolist()), key=sort_key) for i in range(labels.shape[1])]
         codes = np.stack([label_indices(labels[:, i], alphabet) for i, alphabet in enumerate(alphabets)], axis=1)
@@ -100,8 +113,18 @@ class CommandLearner:
         if self.max_epochs is not None:
             overrides["trainer.max_epochs"] = self.max_epochs
         cfg = compose_run_config(["experiment=sensorimotor_csv", f"model={LEARNERS[self.learner]}"], overrides)
+        # The data come as arrays here, not from cfg.data: check the rest.
+        check_config(OmegaConf.masked_copy(cfg, [key for key in cfg if key != "data"]))
         torch.manual_seed(self.seed)
-        model = instantiate(cfg.model)
+        try:
+            model = instantiate(cfg.model)
+        except Exception as error:
+            # Hydra wraps what the model raises while being built: give the user's error itself.
+            cause = user_error(error)
+            if cause is None:
+                raise
+            raise cause from None
+        quiet_lightning()
         fit(model, cfg, FixedSensorimotorDataModule(data), logger=False, enable_checkpointing=False, callbacks=[],
             enable_progress_bar=False)
         self.learner_ = model
@@ -116,7 +139,7 @@ class CommandLearner:
     def _read(self, sensors: Any) -> Any:
         if not hasattr(self, "learner_"):
             raise SfmnetError("this CommandLearner is not fitted yet: call fit(sensors, commands) first")
-        readings = as_matrix(sensors, "sensors")
+        readings = finite_matrix(sensors, "sensors")
         if readings.shape[1] != self.n_features_in_:
             raise SfmnetError(f"sensors has {readings.shape[1]} columns but the learner was fitted on {self.n_features_in_}")
         return self.learner_.read_commands(torch.from_numpy(readings))
@@ -136,3 +159,19 @@ class CommandLearner:
     def transform(self, sensors: Any) -> np.ndarray:
         """The full ``[sensors; one-hot commands]`` vectors the learner reconstructs from ``sensors``: ``f x m``."""
         return self._read(sensors).reconstruction.numpy()
+
+
+def finite_matrix(values: Any, name: str) -> np.ndarray:
+    """:func:`as_matrix`, refusing NaN and infinite entries (a learner has no use for a missing reading)."""
+    array = as_matrix(values, name)
+    bad = np.argwhere(~np.isfinite(array))
+    if len(bad):
+        raise SfmnetError(
+            f"{name} has {len(bad)} NaN or infinite values (first: row {bad[0][0]}, column {bad[0][1]}): "
+            "drop those rows or fill them in"
+        )
+    return array
+
+
+def is_missing(label: Any) -> bool:
+    return label is None or (isinstance(label, float) and math.isnan(label))

@@ -155,6 +155,21 @@ def test_command_learner_errors_and_the_autoencoder(tmp_path: Path):
     assert (learner.predict(sensors) == commands).mean() > 0.6
     with pytest.raises(sfmnet.SfmnetError, match="sensors has 3 columns but the learner was fitted on 4"):
         learner.predict(sensors[:, :3])
+    with pytest.raises(sfmnet.SfmnetError, match=r"sensors has 4 NaN or infinite values \(first: row 0, column 0\)"):
+        learner.predict(np.full((1, 4), np.nan))
+    holed = sensors.copy()
+    holed[7, 2] = np.inf
+    with pytest.raises(sfmnet.SfmnetError, match=r"sensors has 1 NaN or infinite values \(first: row 7, column 2\)"):
+        sfmnet.CommandLearner().fit(holed, commands)
+    for missing in (None, float("nan")):
+        labels = commands.astype(object)
+        labels[3] = missing
+        with pytest.raises(sfmnet.SfmnetError, match=r"commands has 1 missing labels \(None or NaN; first: row 3"):
+            sfmnet.CommandLearner().fit(sensors, labels)
+    for settings, message in (({"rank": 2.5}, "model.rank is 2.5"), ({"max_epochs": -1}, "trainer.max_epochs is -1"),
+                              ({"rank_rule": "bogus"}, "model.rank_rule is 'bogus'")):
+        with pytest.raises(sfmnet.SfmnetError, match=message):
+            sfmnet.CommandLearner(**settings).fit(sensors, commands)
 
 
 def test_integer_counts_and_wrong_widths_in_apply(tmp_path: Path):
