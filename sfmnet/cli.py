@@ -104,6 +104,21 @@ def apply_command() -> None:
 COMMANDS: dict[str, Callable[[], None]] = {"train": train_command, "apply": apply_command}
 
 
+# Characters that make a value a list, a sweep, a function call or already quoted: those are Hydra's to read.
+HYDRA_SYNTAX = set("'\"[]{}(),")
+
+
+def quote_plain_value(override: str) -> str:
+    """``key=value`` with ``value`` in double quotes when Hydra's grammar cannot take it bare (non-ASCII letters,
+    ``=``) and it holds nothing of Hydra's own syntax, e.g. ``data.path=/data/Messung_Größe.csv``."""
+    key, equals, value = override.partition("=")
+    if not equals or not value or key.startswith("-") or HYDRA_SYNTAX & set(value) or "\\" in value:
+        return override
+    if value.isascii() and "=" not in value:
+        return override
+    return f'{key}="{value}"'
+
+
 def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in ("-h", "--help", "help"):
@@ -116,6 +131,7 @@ def main(argv: list[str] | None = None) -> None:
             print(f"error: unknown command '{command}': use one of {', '.join(COMMANDS)} (python -m sfmnet --help)", file=sys.stderr)
             sys.exit(2)
     if command == "train":
+        args = [quote_plain_value(arg) for arg in args]
         exit_on_user_error(lambda: check_train_arguments(args))
     if command == "train" and any(flag in args for flag in MULTIRUN_FLAGS):
         # Hydra's parser takes -m only before or after all the overrides, not among them.
