@@ -119,6 +119,15 @@ def quote_plain_value(override: str) -> str:
     return f'{key}="{value}"'
 
 
+def refuse_bare_words(args: list[str]) -> None:
+    """A word that is no ``key=value``, ``+key=value`` or ``~key`` (Hydra would answer with its usage and exit 1)."""
+    if any(arg.startswith("-") and arg not in MULTIRUN_FLAGS for arg in args):
+        return  # Hydra's own flags (--cfg job, --info, ...) take bare words as their values
+    for arg in args:
+        if arg not in MULTIRUN_FLAGS and "=" not in arg and not arg.startswith("~"):
+            raise SfmnetError(f"'{arg}' is not a setting: write key=value, e.g. experiment={arg} (python -m sfmnet train --help)")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in ("-h", "--help", "help"):
@@ -132,6 +141,7 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(2)
     if command == "train":
         args = [quote_plain_value(arg) for arg in args]
+        exit_on_user_error(lambda: refuse_bare_words(args))
         exit_on_user_error(lambda: check_train_arguments(args))
     if command == "train" and any(flag in args for flag in MULTIRUN_FLAGS):
         # Hydra's parser takes -m only before or after all the overrides, not among them.

@@ -329,6 +329,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "infinite value": (lambda t: calibrate(t, edit=set_cell(9, 1, "-inf")), r"1 empty, NaN or infinite reading values \(first: line 9 column s0\)"),
     "value of 1e30": (lambda t: calibrate(t, edit=set_cell(4, 2, "1e30")), r"1 reading values beyond 1e\+15 \(first: line 4 column s1 \(1e\+30\)\): a corrupt cell or a unit slip"),
     "duplicate column names": (lambda t: calibrate(t, edit=rename_column(2, "s0")), r"duplicate column names: s0; rename them"),
+    "channel named twice": (lambda t: calibrate(t, "data.channel_columns=[s0,s0,s1,s2,s3]"), r"column 's0' is named as a channel column twice: give each column one role, once"),
+    "time column named as a channel": (lambda t: calibrate(t, "data.channel_columns=[time,s0,s1,s2,s3,s4,s5]"), r"column 'time' is named as both a channel and a time column"),
     "missing column": (lambda t: calibrate(t, "data.load_columns=[fx,fy,fzz]"), r"load column 'fzz' is not in .* \(did you mean 'fz'\?\)"),
     "fewer channels than loads": (lambda t: calibrate(t, "data.channel_columns=[s0,s1]"), r"2 channel columns for 3 load axes"),
     "fewer samples than unknowns": (lambda t: calibrate(t, edit=keep_rows(5)), r"only 8 samples for 9 unknowns of the metric constraint with offsets"),
@@ -577,10 +579,11 @@ def test_table_is_long_enough():
         (["train", "hydra.run.dir={tmp}/taken"], "error: {tmp}/taken cannot be a folder: {tmp}/taken is a file; choose another hydra.run.dir"),
         # The command line quotes a bare value Hydra cannot take (sfmnet.cli.quote_plain_value): the path is read.
         (["train", "experiment=calibrate_csv", "data.path=/data/sé.csv", "data.magnitude=9.81"], "error: /data/sé.csv does not exist: check data.path"),
+        (["train", "foo"], "error: 'foo' is not a setting: write key=value, e.g. experiment=foo (python -m sfmnet train --help)"),
         (["train", "trainer.accelerator=mps"], "error: Lightning cannot make a Trainer of these trainer settings ("),
         (["apply", "calibration={tmp}/nan.json", "input={tmp}/readings.csv", "output={tmp}/loads.csv"], "error: calibration file {tmp}/nan.json: matrix holds NaN"),
     ],
-    ids=["train", "apply", "run-dir-is-a-file", "unquoted-non-ascii-path-is-read", "missing-accelerator", "apply-nan-calibration"],
+    ids=["train", "apply", "run-dir-is-a-file", "unquoted-non-ascii-path-is-read", "bare-word", "missing-accelerator", "apply-nan-calibration"],
 )
 def test_cli_prints_one_line_and_exits_2(args: list[str], message: str, tmp_path: Path):
     """``message``: the start of the one line on stderr (``{tmp}``: the test's folder, where the files below lie)."""

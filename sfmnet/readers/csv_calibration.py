@@ -101,8 +101,10 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         self.table = table
 
     def build(self) -> CalibrationData:
+        roles = self.named_columns()
+        refuse_columns_named_twice(roles)
         table = self.table if self.table is not None else read_table(self.path, self.columns)
-        for role, names in self.named_columns().items():
+        for role, names in roles.items():
             table.require(names, role)
         excluded = {*self.load_columns, *(c for c in (self.time_column, self.configuration_column, self.group_column) if c)}
         # Numeric columns with a few bad cells stay in, so their cells are reported, not skipped.
@@ -293,3 +295,14 @@ def monotonic_channel_warnings(readings: np.ndarray, channels: list[str], span: 
         f"leave it out of the channels (data.time_column={name}, or data.channel_columns=[...])"
         for name, up, down in zip(channels, rising, falling) if up or down
     ]
+
+
+def refuse_columns_named_twice(roles: dict[str, list[str]]) -> None:
+    """A column named twice would be counted twice (a channel) or read as two things (a time that is also a channel)."""
+    seen: dict[str, str] = {}
+    for role, names in roles.items():
+        for name in names:
+            if name in seen:
+                both = f"as a {role} column twice" if seen[name] == role else f"as both a {seen[name]} and a {role} column"
+                raise SfmnetError(f"column '{name}' is named {both}: give each column one role, once")
+            seen[name] = role

@@ -54,6 +54,14 @@ def fit(
         if trainer.state.status is TrainerStatus.INTERRUPTED:
             raise FitInterrupted(resume_hint(trainer)) from None
         raise
+    except RuntimeError as error:
+        if ckpt_path is not None and "state_dict" in str(error):
+            first = next((line.strip() for line in str(error).splitlines()[1:] if line.strip()), str(error))
+            raise SfmnetError(
+                f"ckpt_path {ckpt_path} is a checkpoint of another fit ({first.rstrip('.')}): resume with a checkpoint "
+                "of this same config's run"
+            ) from None
+        raise
     return trainer
 
 
