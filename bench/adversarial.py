@@ -1010,20 +1010,17 @@ def _(t: Trial) -> Run:
     return run
 
 
-@case("csv-p-equals-n", WORKED, "three channels for three axes (p = n), three known loads")
-def _(t: Trial) -> Run:
-    session = simulate(channels=3, rows=200)
-    run = t.train(*calibrate_args(session_csv(t, session=session)))
-    t.verify(run, near_truth(t.run, session))
-    return run
+def channel_count_case(name: str, channels: int, description: str) -> None:
+    @case(name, WORKED, description)
+    def _(t: Trial) -> Run:
+        session = simulate(channels=channels, rows=200)
+        run = t.train(*calibrate_args(session_csv(t, session=session)))
+        t.verify(run, near_truth(t.run, session))
+        return run
 
 
-@case("csv-sixteen-channels", WORKED, "sixteen channels for three axes")
-def _(t: Trial) -> Run:
-    session = simulate(channels=16, rows=200)
-    run = t.train(*calibrate_args(session_csv(t, session=session)))
-    t.verify(run, near_truth(t.run, session))
-    return run
+channel_count_case("csv-p-equals-n", 3, "three channels for three axes (p = n), three known loads")
+channel_count_case("csv-sixteen-channels", 16, "sixteen channels for three axes")
 
 
 @case("csv-duplicate-rows", WORKED, "every row written twice (a logger that repeats samples)")

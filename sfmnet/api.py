@@ -198,7 +198,7 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
     """Fit through :func:`sfmnet.training.run.train` into ``run_dir`` (or a temporary one) and read its calibration."""
     from hydra.utils import instantiate
 
-    from sfmnet.cli import user_error
+    from sfmnet.cli import unwrapped_user_errors
     from sfmnet.config_values import check_config
     from sfmnet.training.run import train
     from sfmnet.training.run_directory import claim_run_dir, release_run_dir
@@ -212,13 +212,7 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
             stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
         # The data module is built here, before train() checks the config: check it first.
         check_config(cfg)
-        try:
+        with unwrapped_user_errors():
             datamodule = instantiate(cfg.data, _partial_=True)(table=table)
-            train(cfg, Path(run_dir), datamodule=datamodule)
-        except Exception as error:
-            # Hydra wraps what a model or data module raises while being built: give the user's error itself.
-            cause = user_error(error)
-            if cause is None or cause is error:
-                raise
-            raise cause from None
+        train(cfg, Path(run_dir), datamodule=datamodule)
         return Calibration.load(Path(run_dir) / "calibration.json")

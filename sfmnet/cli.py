@@ -7,9 +7,10 @@ default command because Lightning's DDP launcher restarts worker processes as
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from sfmnet.errors import FitInterrupted, SfmnetError
@@ -57,6 +58,18 @@ def user_error(error: BaseException) -> SfmnetError | None:
     return None
 
 
+@contextlib.contextmanager
+def unwrapped_user_errors() -> Iterator[None]:
+    """Raise the :class:`SfmnetError` itself where Hydra wrapped it (while building a data module or model)."""
+    try:
+        yield
+    except Exception as error:
+        cause = user_error(error)
+        if cause is None or cause is error:
+            raise
+        raise cause from None
+
+
 def exit_on_user_error(action: Callable[[], object]) -> None:
     """Run ``action``; a user error becomes one line on stderr and exit status 2 (an interrupted fit: 130)."""
     try:
@@ -75,10 +88,11 @@ def check_train_arguments(args: list[str]) -> None:
     on Hydra's parsed config (:mod:`sfmnet.training.run_directory`)."""
     if os.environ.get("LOCAL_RANK", "0") != "0" or "--help" in args or "-h" in args:
         return
+    refuse_bare_words(args)
     from sfmnet.config_check import check_overrides
 
-    sweep = "-m" in args or "--multirun" in args
-    check_overrides([a for a in args if a not in ("-m", "--multirun")], config_dir(), sweep=sweep)
+    sweep = any(flag in args for flag in MULTIRUN_FLAGS)
+    check_overrides([a for a in args if a not in MULTIRUN_FLAGS], config_dir(), sweep=sweep)
 
 
 def train_command() -> None:
@@ -141,7 +155,6 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(2)
     if command == "train":
         args = [quote_plain_value(arg) for arg in args]
-        exit_on_user_error(lambda: refuse_bare_words(args))
         exit_on_user_error(lambda: check_train_arguments(args))
     if command == "train" and any(flag in args for flag in MULTIRUN_FLAGS):
         # Hydra's parser takes -m only before or after all the overrides, not among them.

@@ -81,7 +81,7 @@ class CommandLearner:
         from sfmnet.data.sensorimotor import Command, Episode, FixedSensorimotorDataModule, SensorimotorData, label_indices
         from omegaconf import OmegaConf
 
-        from sfmnet.cli import user_error
+        from sfmnet.cli import unwrapped_user_errors
         from sfmnet.config_values import check_config
         from sfmnet.readers.sensorimotor_csv import sort_key
         from sfmnet.training.fitting import fit
@@ -116,14 +116,8 @@ class CommandLearner:
         # The data come as arrays here, not from cfg.data: check the rest.
         check_config(OmegaConf.masked_copy(cfg, [key for key in cfg if key != "data"]))
         torch.manual_seed(self.seed)
-        try:
+        with unwrapped_user_errors():
             model = instantiate(cfg.model)
-        except Exception as error:
-            # Hydra wraps what the model raises while being built: give the user's error itself.
-            cause = user_error(error)
-            if cause is None:
-                raise
-            raise cause from None
         quiet_lightning()
         fit(model, cfg, FixedSensorimotorDataModule(data), logger=False, enable_checkpointing=False, callbacks=[],
             enable_progress_bar=False)

@@ -50,24 +50,32 @@ def killed_then_resumed(tmp_path: Path, run: list[str], method: str, epoch: int)
     return resumed
 
 
+def uninterrupted(tmp_path: Path, run: list[str]) -> Path:
+    """``run`` from start to finish into ``tmp_path / "whole"``."""
+    whole = sfmnet(tmp_path / "whole", *run)
+    assert whole.returncode == 0, whole.stderr[-2000:]
+    return tmp_path / "whole"
+
+
+def assert_same_calibration(first_dir: Path, second_dir: Path) -> None:
+    first, second = (json.loads((folder / "calibration.json").read_text()) for folder in (first_dir, second_dir))
+    for key in ("matrix", "offset", "matrix_std"):
+        assert first[key] == second[key], key
+
+
 def test_calibration_killed_mid_fit_resumes_bit_for_bit(tmp_path: Path):
     killed_then_resumed(tmp_path, CALIBRATION, "shape_from_motion", epoch=4)
     resumed = tmp_path / "resumed"
-    whole = sfmnet(tmp_path / "whole", *CALIBRATION)
-    assert whole.returncode == 0, whole.stderr[-2000:]
-    first = json.loads((resumed / "calibration.json").read_text())
-    second = json.loads((tmp_path / "whole" / "calibration.json").read_text())
-    for key in ("matrix", "offset", "matrix_std"):
-        assert first[key] == second[key], key
+    whole = uninterrupted(tmp_path, CALIBRATION)
+    assert_same_calibration(resumed, whole)
     assert json.loads((resumed / "metrics.json").read_text())["epochs"] == 8
 
 
 def test_eigenspace_learner_killed_mid_fit_resumes_bit_for_bit(tmp_path: Path):
     killed_then_resumed(tmp_path, EIGENSPACE, "eigenspace", epoch=3)
     resumed = tmp_path / "resumed"
-    whole = sfmnet(tmp_path / "whole", *EIGENSPACE)
-    assert whole.returncode == 0, whole.stderr[-2000:]
-    with np.load(resumed / "learner.npz") as first, np.load(tmp_path / "whole" / "learner.npz") as second:
+    whole = uninterrupted(tmp_path, EIGENSPACE)
+    with np.load(resumed / "learner.npz") as first, np.load(whole / "learner.npz") as second:
         assert sorted(first.files) == sorted(second.files)
         for name in first.files:
             assert np.array_equal(first[name], second[name]), name
@@ -84,13 +92,9 @@ def test_streamed_fit_killed_between_passes_resumes_bit_for_bit(tmp_path: Path):
     says = killed_then_resumed(tmp_path, run, "streamed_shape_from_motion", epoch=4).stdout
     assert "keeps the passes it finished and reads the one it was in again from its start" in says
     resumed = tmp_path / "resumed"
-    whole = sfmnet(tmp_path / "whole", *run)
-    assert whole.returncode == 0, whole.stderr[-2000:]
-    first = json.loads((resumed / "calibration.json").read_text())
-    second = json.loads((tmp_path / "whole" / "calibration.json").read_text())
-    for key in ("matrix", "offset", "matrix_std"):
-        assert first[key] == second[key], key
-    assert json.loads((resumed / "metrics.json").read_text())["epochs"] == json.loads((tmp_path / "whole" / "metrics.json").read_text())["epochs"]
+    whole = uninterrupted(tmp_path, run)
+    assert_same_calibration(resumed, whole)
+    assert json.loads((resumed / "metrics.json").read_text())["epochs"] == json.loads((whole / "metrics.json").read_text())["epochs"]
 
 
 def test_ctrl_c_names_the_checkpoint_to_resume_from(tmp_path: Path):

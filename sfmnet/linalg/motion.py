@@ -85,11 +85,15 @@ def unit_motion(readings: torch.Tensor, shape: torch.Tensor, iterations: int = 1
         ``b x n``, unit rows.
     """
     eigenvalues, basis = torch.linalg.eigh(shape @ shape.T)
-    if len(readings) > UNIT_MOTION_CHUNK_ROWS:
-        # In chunks, so the solve's temporaries stay a few MB however long the recording.
-        chunks = readings.split(UNIT_MOTION_CHUNK_ROWS)
-        return torch.cat([unit_motion(chunk, shape, iterations) for chunk in chunks])
-    coefficients = readings @ shape.T @ basis
+    # In chunks, so the solve's temporaries stay a few MB however long the recording.
+    chunks = readings.split(UNIT_MOTION_CHUNK_ROWS)
+    return torch.cat([boundary_directions(chunk @ shape.T @ basis, eigenvalues, basis, iterations) for chunk in chunks])
+
+
+def boundary_directions(
+    coefficients: torch.Tensor, eigenvalues: torch.Tensor, basis: torch.Tensor, iterations: int
+) -> torch.Tensor:
+    """:func:`unit_motion`'s Newton solve for rows ``c = z S^T V`` (``b x n``) in the eigenbasis ``V`` of ``S S^T``."""
     # |u(s)| >= |c| / (g_max + s) and >= |c_min| / (g_min + s): left of the root, so a floor for every step.
     low = torch.maximum(coefficients.norm(dim=1) - eigenvalues[-1], coefficients[:, 0].abs() - eigenvalues[0])
     # Noise-free readings have their root at s = 0; a step from its right lands left of the root.

@@ -18,13 +18,12 @@ from pathlib import Path
 
 import lightning as L
 import torch
-from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig
 
-from sfmnet.cli import user_error
+from sfmnet.cli import unwrapped_user_errors
 from sfmnet.config_values import check_config
 from sfmnet.errors import SfmnetError
 from sfmnet.io import check_writable_dir, write_json_atomic
@@ -75,13 +74,8 @@ def unwrapping_user_errors(run: Callable[..., Metrics]) -> Callable[..., Metrics
 
     @functools.wraps(run)
     def wrapper(*args, **kwargs) -> Metrics:
-        try:
+        with unwrapped_user_errors():
             return run(*args, **kwargs)
-        except InstantiationException as error:
-            cause = user_error(error)
-            if cause is None:
-                raise
-            raise cause from None
 
     return wrapper
 
