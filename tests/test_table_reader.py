@@ -52,12 +52,19 @@ def with_empty_rows(rows: list[list[str]], path: Path) -> None:
     path.write_text("\n".join([*lines[:5], empty, "", *lines[5:], empty, empty]) + "\n")
 
 
-VARIANTS: dict[str, Callable[[list[list[str]], Path], None]] = {
-    "BOM": with_bom,
-    "semicolons and decimal commas": semicolons_and_decimal_commas,
-    "UTF-16 with tabs": unicode_text,
-    "quoted cells": quoted,
-    "empty rows": with_empty_rows,
+def tab_separated(rows: list[list[str]], path: Path) -> None:
+    """A ``.tsv``: tabs, and two tabs around an empty load cell."""
+    path.write_text("".join("\t".join(row) + "\n" for row in rows))
+
+
+# Each variant's writer and the file name it is saved under.
+VARIANTS: dict[str, tuple[Callable[[list[list[str]], Path], None], str]] = {
+    "BOM": (with_bom, "variant.csv"),
+    "semicolons and decimal commas": (semicolons_and_decimal_commas, "variant.csv"),
+    "UTF-16 with tabs": (unicode_text, "variant.csv"),
+    "quoted cells": (quoted, "variant.csv"),
+    "empty rows": (with_empty_rows, "variant.csv"),
+    "a .tsv with empty cells": (tab_separated, "variant.tsv"),
 }
 
 
@@ -65,8 +72,9 @@ VARIANTS: dict[str, Callable[[list[list[str]], Path], None]] = {
 def test_every_reader_reads_the_variant_as_the_plain_csv(variant: str, tmp_path: Path):
     plain = tmp_path / "plain.csv"
     write_session(plain)
-    written = tmp_path / "variant.csv"
-    VARIANTS[variant](plain_rows(plain), written)
+    writer, name = VARIANTS[variant]
+    written = tmp_path / name
+    writer(plain_rows(plain), written)
     expected, table = read_table(plain), read_table(written)
     assert list(table.columns) == list(expected.columns) and not table.text
     for name, values in expected.columns.items():

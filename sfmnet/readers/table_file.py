@@ -62,9 +62,9 @@ class Table:
 
 
 def read_table(path: Path, columns: list[str] | None = None, option: str = "data.path") -> Table:
-    """Read a CSV (header row, one sample per row; see :mod:`sfmnet.readers.delimited`), ``.npy`` (needs
-    ``columns``), ``.npz`` (one array per column), or a whitespace-separated text table (``.txt``, ``.dat``,
-    ``.tsv``: numbers only, a header row unless ``columns`` names the columns, as loggers and MATLAB's
+    """Read a CSV or ``.tsv`` (header row, one sample per row; see :mod:`sfmnet.readers.delimited`), ``.npy``
+    (needs ``columns``), ``.npz`` (one array per column), or a whitespace-separated text table (``.txt``,
+    ``.dat``: numbers only, a header row unless ``columns`` names the columns, as loggers and MATLAB's
     ``save -ascii`` write). ``option`` is what the user set the path with (for messages).
 
     Empty cells become NaN. A column with any non-numeric, non-empty cell is kept as text and
@@ -122,7 +122,8 @@ def real_values(path: Path, array: np.ndarray, what: str) -> np.ndarray:
     return array
 
 
-WHITESPACE_SUFFIXES = (".txt", ".dat", ".tsv")
+# Not .tsv: two tabs there are an empty cell, where runs of whitespace are one separator.
+WHITESPACE_SUFFIXES = (".txt", ".dat")
 
 
 def _read_whitespace(path: Path, columns: list[str] | None) -> Table:
