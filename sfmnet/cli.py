@@ -70,8 +70,11 @@ def unwrapped_user_errors() -> Iterator[None]:
         raise cause from None
 
 
-def exit_on_user_error(action: Callable[[], object]) -> None:
-    """Run ``action``; a user error becomes one line on stderr and exit status 2 (an interrupted fit: 130)."""
+def exit_on_user_error(action: Callable[[], object], refused: Callable[[], None] | None = None) -> None:
+    """Run ``action``; a user error becomes one line on stderr and exit status 2 (an interrupted fit: 130).
+
+    ``refused``: run after a user error other than an interruption (e.g. undo the run directory's claim).
+    """
     try:
         action()
     except Exception as error:
@@ -79,6 +82,8 @@ def exit_on_user_error(action: Callable[[], object]) -> None:
         if cause is None or debug_enabled():
             raise
         interrupted = isinstance(cause, FitInterrupted)
+        if refused is not None and not interrupted:
+            refused()
         print(f"{'interrupted' if interrupted else 'error'}: {cause}", file=sys.stderr)
         sys.exit(cause.exit_status if interrupted else 2)
 
@@ -98,13 +103,19 @@ def check_train_arguments(args: list[str]) -> None:
 def train_command() -> None:
     import hydra
     from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
     from omegaconf import DictConfig
 
     from sfmnet.training.run import train
 
+    from sfmnet.training.run_directory import discard_refused_run
+
     @hydra.main(version_base="1.3", config_path=config_dir(), config_name="train")
     def task(cfg: DictConfig) -> None:
-        exit_on_user_error(lambda: train(cfg, Path(HydraConfig.get().runtime.output_dir)))
+        run_dir = Path(HydraConfig.get().runtime.output_dir)
+        # A refused single run gives its directory back; a sweep's jobs keep theirs beside the others.
+        single = HydraConfig.get().mode == RunMode.RUN
+        exit_on_user_error(lambda: train(cfg, run_dir), (lambda: discard_refused_run(run_dir)) if single else None)
 
     task()
 

@@ -84,3 +84,16 @@ def test_the_lock_is_exclusive(tmp_path: Path):
         claim_run_dir(tmp_path / "run", "run_dir")
     release_run_dir(tmp_path / "run")
     claim_run_dir(tmp_path / "run", "run_dir")
+
+
+def test_a_refused_run_gives_its_directory_back(tmp_path: Path):
+    """Refused before any result: the scaffold (.hydra, train.log, lock) goes, so the corrected command can use the
+    directory; a folder the user made stays, empty."""
+    missing = f"data.path={tmp_path / 'missing.csv'}"
+    made_by_user = tmp_path / "mine"
+    made_by_user.mkdir()
+    for run_dir in (tmp_path / "new", made_by_user):
+        refused = sfmnet("experiment=calibrate_csv", missing, f"hydra.run.dir={run_dir}")
+        assert refused.returncode == 2 and "does not exist" in refused.stderr
+    assert not (tmp_path / "new").exists()
+    assert made_by_user.is_dir() and not any(made_by_user.iterdir())

@@ -9,6 +9,7 @@ of two runs started at once into one directory, exactly one gets it.
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,10 @@ from sfmnet.errors import SfmnetError
 from sfmnet.io import check_writable_dir, write_error
 
 LOCK_NAME = ".sfmnet-lock"
+# What a run leaves before it has a result: Hydra's record of its config, its log, the lock.
+RUN_SCAFFOLD = {".hydra", "train.log", LOCK_NAME}
+# The lock's second line when the claim made the directory (so only then is it removed with the scaffold).
+CREATED = "created"
 
 
 def claim_run_dir(path: Path, option: str) -> None:
@@ -30,6 +35,7 @@ def claim_run_dir(path: Path, option: str) -> None:
     """
     path = Path(path)
     check_writable_dir(path, option)
+    created = not path.exists()
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -50,11 +56,29 @@ def claim_run_dir(path: Path, option: str) -> None:
     except OSError as error:
         raise write_error(path / LOCK_NAME, error) from None
     with os.fdopen(descriptor, "w") as lock:
-        lock.write(f"{os.getpid()}\n")
+        lock.write(f"{os.getpid()}\n" + (f"{CREATED}\n" if created else ""))
 
 
 def release_run_dir(path: Path) -> None:
     (Path(path) / LOCK_NAME).unlink(missing_ok=True)
+
+
+def discard_refused_run(path: Path) -> None:
+    """Undo the claim of a run refused before it wrote a result, so the corrected command can use ``path`` again.
+
+    Only the scaffold goes (:data:`RUN_SCAFFOLD`), and the directory itself only if the claim
+    made it; a directory holding anything else (a checkpoint, a figure) is left as it is.
+    """
+    path = Path(path)
+    lock = path / LOCK_NAME
+    if not lock.is_file() or not {entry.name for entry in path.iterdir()} <= RUN_SCAFFOLD:
+        return
+    created = CREATED in lock.read_text().split()
+    shutil.rmtree(path / ".hydra", ignore_errors=True)
+    (path / "train.log").unlink(missing_ok=True)
+    lock.unlink()
+    if created:
+        path.rmdir()
 
 
 def is_worker() -> bool:
