@@ -135,13 +135,21 @@ HYDRA_SYNTAX = set("'\"[]{}(),")
 
 def quote_plain_value(override: str) -> str:
     """``key=value`` with ``value`` in double quotes when Hydra's grammar cannot take it bare (non-ASCII letters,
-    ``=``) and it holds nothing of Hydra's own syntax, e.g. ``data.path=/data/Messung_Größe.csv``."""
+    ``=``) and it holds nothing of Hydra's own syntax, e.g. ``data.path=/data/Messung_Größe.csv``; in a plain
+    list each such element, e.g. ``data.load_columns=[Fₓ,Fᵧ,F_z]``."""
     key, equals, value = override.partition("=")
-    if not equals or not value or key.startswith("-") or HYDRA_SYNTAX & set(value) or "\\" in value:
+    if not equals or not value or key.startswith("-") or "\\" in value:
         return override
-    if value.isascii() and "=" not in value:
+    if value.startswith("[") and value.endswith("]") and not HYDRA_SYNTAX & set(value[1:-1]) - {","}:
+        return f"{key}=[{','.join(quoted_element(element) for element in value[1:-1].split(','))}]"
+    if HYDRA_SYNTAX & set(value):
         return override
-    return f'{key}="{value}"'
+    return f"{key}={quoted_element(value)}"
+
+
+def quoted_element(value: str) -> str:
+    """``value`` in double quotes if Hydra's grammar cannot take it bare (non-ASCII letters, ``=``)."""
+    return value if value.isascii() and "=" not in value else f'"{value}"'
 
 
 def refuse_bare_words(args: list[str]) -> None:

@@ -35,8 +35,11 @@ def suggestion(name: str, choices: list[str]) -> str:
 
 
 def quoted(item: str) -> str:
-    """``key=value`` with the value quoted for Hydra, and the whole quoted for the shell."""
+    """``key=value`` with the value quoted for Hydra (a list's elements each), and the whole quoted for the shell."""
     key, _, value = item.partition("=")
+    if value.startswith("[") and value.endswith("]") and not set("'\"[]") & set(value[1:-1]):
+        elements = ",".join(f'"{element.strip()}"' for element in value[1:-1].split(","))
+        return f"'{key}=[{elements}]'"
     if '"' in value:
         return f"\"{key}='{value}'\""
     return f"'{key}=\"{value}\"'"

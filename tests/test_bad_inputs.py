@@ -527,6 +527,9 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         overrides_of("experiment=calibrate_csv", "data.path=/data/sé.csv", "data.magnitude=1"),
         r"""Hydra cannot read data.path=/data/sé.csv: .*; quote it: 'data.path="/data/sé.csv"'""",
     ),
+    "non-ASCII names in an unquoted list": (
+        overrides_of("data.load_columns=[Fₓ,Fᵧ]"), r"""quote it: 'data.load_columns=\["Fₓ","Fᵧ"\]'""",
+    ),
     "'=' in an unquoted path": (overrides_of("data.path=/data/a=b.csv"), r"""quote it: 'data.path="/data/a=b.csv"'"""),
     "'[' in an unquoted path": (overrides_of("data.path=/data/a[1].csv"), r"""quote it: 'data.path="/data/a\[1\].csv"'"""),
     "'${' in a path": (
@@ -578,7 +581,7 @@ def test_table_is_long_enough():
         (["apply", "calibration=/nonexistent/c.json", "input=/nonexistent/r.csv", "output=/tmp/never.csv"], "error: calibration file /nonexistent/c.json does not exist: give the calibration.json of a run"),
         (["train", "hydra.run.dir={tmp}/taken"], "error: {tmp}/taken cannot be a folder: {tmp}/taken is a file; choose another hydra.run.dir"),
         # The command line quotes a bare value Hydra cannot take (sfmnet.cli.quote_plain_value): the path is read.
-        (["train", "experiment=calibrate_csv", "data.path=/data/sé.csv", "data.magnitude=9.81"], "error: /data/sé.csv does not exist: check data.path"),
+        (["train", "experiment=calibrate_csv", "data.path=/data/sé.csv", "data.load_columns=[Fₓ,Fᵧ,F_z]", "data.magnitude=9.81"], "error: /data/sé.csv does not exist: check data.path"),
         (["train", "foo"], "error: 'foo' is not a setting: write key=value, e.g. experiment=foo (python -m sfmnet train --help)"),
         (["train", "trainer.accelerator=mps"], "error: Lightning cannot make a Trainer of these trainer settings ("),
         (["apply", "calibration={tmp}/nan.json", "input={tmp}/readings.csv", "output={tmp}/loads.csv"], "error: calibration file {tmp}/nan.json: matrix holds NaN"),
