@@ -495,6 +495,11 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: array_file(t, "rows.npy", lambda p: p.write_bytes(b""), "experiment=pca", "model.rank=2"),
         r"rows.npy cannot be read as .npy \(.*\): it is truncated or not a .npy file",
     ),
+    "rows: .npy cut off halfway": (
+        lambda t: array_file(t, "rows.npy", lambda p: np.save(p, SEVEN_COLUMNS) or p.write_bytes(p.read_bytes()[:-8]),
+                             "experiment=pca", "model.rank=2"),
+        r"rows.npy is cut off: its header says \d+ x 7 float64 values \(\d+ bytes\) but the file has \d+ bytes: copy or save it again",
+    ),
     # checkpoints given as ckpt_path
     "truncated checkpoint": (lambda t: resume_from(t, truncated_checkpoint), r"last.ckpt is not a checkpoint \(not the zip archive torch.save writes"),
     "text file as checkpoint": (lambda t: resume_from(t, lambda p: p.write_text("epoch=3\n")), r"last.ckpt is not a checkpoint \(not the zip archive"),

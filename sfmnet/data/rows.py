@@ -40,6 +40,13 @@ def npy_layout(path: Path) -> NpyLayout:
             f"{path} holds {'a Fortran-order' if fortran_order else 'an'} array of shape {shape}: "
             "save a C-order 2-D array (np.save of a row matrix)"
         )
+    expected = offset + shape[0] * shape[1] * dtype.itemsize
+    size = path.stat().st_size
+    if size < expected:
+        raise SfmnetError(
+            f"{path} is cut off: its header says {shape[0]} x {shape[1]} {dtype} values ({expected} bytes) but the file "
+            f"has {size} bytes: copy or save it again"
+        )
     return NpyLayout(path, offset, dtype, shape)
 
 
