@@ -131,7 +131,7 @@ Rule = Callable[[str, Any], str | None]
 # What a key must hold, wherever it is set (a key a config does not have is skipped).
 RULES: dict[str, Rule] = {
     "seed": Bound(int, low=0, high=2**32 - 1),
-    "threads": Bound(int, low=1),
+    "threads": lambda key, value: None if value == "auto" else Bound(int, low=1, why="or auto")(key, value),
     "ckpt_path": checkpoint_problem,
     "trainer.max_epochs": Bound(int, low=0, nullable=True, why="Lightning's -1, no limit, never ends a fit"),
     "optimizer.lr": Bound(float, low=0, strict=True),

@@ -4,6 +4,7 @@ the refused ones are in tests/test_bad_inputs.py."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from sfmnet.config_check import check_overrides
 from sfmnet.config_values import check_config
 from sfmnet.io import check_writable_dir
 from sfmnet.readers.table_file import read_table
-from sfmnet.training.run import train
+from sfmnet.training.run import MAX_THREADS, THREADED_ROWS, thread_count, train
 from tests.conftest import EXPERIMENTS, compose_config, write_session
 
 # What each experiment that reads the user's file needs to compose (the files are not opened by the checks).
@@ -38,7 +39,7 @@ def test_every_experiment_passes_the_checks(experiment: str):
     [
         ["data.magnitude=100"],  # a whole number where a number is declared
         ["seed=4294967295", "threads=2", "trainer.max_epochs=0"],
-        ["model.metric_weight=1e-9", "model.rank=2", "ckpt_path=null"],
+        ["model.metric_weight=1e-9", "model.rank=2", "ckpt_path=null", "threads=auto"],
         ["experiment=calibrate_csv", "data.path=/data/s.csv", "data.mass=1", "data.mirror_hint={row:3,axis:fz,sign:-1}"],
         ["experiment=calibrate_csv", "data.path=/data/s.csv", "data.load_columns=[fx,fy,fz,mx,my,mz]",
          "data.configuration_column=config", "data.configurations={1:{mass:1,centre_of_mass:[0,0,0.1]}}"],
@@ -90,3 +91,9 @@ def test_a_calibration_without_its_optional_figures_loads(tmp_path: Path):
     calibration.save(tmp_path / "calibration.json")
     loaded = Calibration.load(tmp_path / "calibration.json")
     assert loaded.matrix.tolist() == [[1.0, 0.0], [0.0, 1.0]] and torch.isnan(loaded.matrix_std).all()
+
+
+def test_auto_threads_follow_the_rows():
+    cores = min(len(os.sched_getaffinity(0)), MAX_THREADS)
+    assert [thread_count("auto", rows) for rows in (0, THREADED_ROWS - 1, THREADED_ROWS)] == [1, 1, cores]
+    assert thread_count(3, 10) == 3

@@ -41,6 +41,12 @@ class CalibrationDataModule(L.LightningDataModule, ABC):
         if self.data is None:
             self.data = self.build()
 
+    @property
+    def rows(self) -> int:
+        """The rows a fit reads (every recording's), after :meth:`setup`."""
+        assert self.data is not None, "setup() runs first"
+        return sum(len(recording.readings) for recording in self.data.recordings.values())
+
     def train_dataloader(self) -> dict[str, DataLoader]:
         assert self.data is not None, "setup() runs before the loaders"
         loaders = {}

@@ -106,6 +106,12 @@ class SensorimotorDataModule(L.LightningDataModule, ABC):
             self.data = self.build()
             check_training_vectors(self.data)
 
+    @property
+    def rows(self) -> int:
+        """The training vectors a fit reads, after :meth:`setup`."""
+        assert self.data is not None, "setup() runs first"
+        return sum(len(episode.sensors) for episode in self.data.train)
+
     def train_dataloader(self) -> dict[str, DataLoader]:
         assert self.data is not None, "setup() runs before the loaders"
         vectors = self.data.vectors(self.data.train)

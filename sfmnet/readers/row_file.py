@@ -128,6 +128,12 @@ class RowFileDataModule(L.LightningDataModule):
         if self.data is None:
             self.data = self.build()
 
+    @property
+    def rows(self) -> int:
+        """The file's rows, after :meth:`setup`."""
+        assert self.data is not None, "setup() runs first"
+        return self.data.rows
+
     def build(self) -> RowData:
         layout, names = self.open_rows()
         return self.row_data(layout, names, self.channel_columns or names)

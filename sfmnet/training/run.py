@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import time
 import warnings
 from collections.abc import Callable
@@ -58,6 +59,19 @@ def refuse_existing_results(run_dir: Path) -> None:
         )
 
 
+# From this many rows on, operations are large enough for torch's thread pool to pay off.
+THREADED_ROWS = 100_000
+MAX_THREADS = 8
+
+
+def thread_count(setting: int | str, rows: int) -> int:
+    """torch's threads for a fit of ``rows`` rows: ``setting``, or for ``auto`` one below :data:`THREADED_ROWS`, else
+    every core this process may use (at most :data:`MAX_THREADS`)."""
+    if setting != "auto":
+        return int(setting)
+    return 1 if rows < THREADED_ROWS else min(len(os.sched_getaffinity(0)), MAX_THREADS)
+
+
 def build_task(cfg: DictConfig, datamodule: L.LightningDataModule) -> Task:
     """``cfg.task``, else the kind the data module declares; a task that does not fit the data is refused."""
     declared = datamodule.task
@@ -91,11 +105,12 @@ def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | No
     check_writable_dir(run_dir, "run directory")
     check_config(cfg)
     quiet_lightning()
-    torch.set_num_threads(cfg.threads)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
+    torch.set_num_threads(thread_count(cfg.threads, rows=0))  # reading or simulating: small operations
     if datamodule is None:
         datamodule = instantiate(cfg.data)
     datamodule.setup("fit")
+    torch.set_num_threads(thread_count(cfg.threads, datamodule.rows))
     task = build_task(cfg, datamodule)
     data = datamodule.data
     results: dict[str, MethodResult] = {}
