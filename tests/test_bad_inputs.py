@@ -454,6 +454,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "fractional rank": (simulated("model.rank=2.5"), r"model.rank is 2.5: give a whole number >= 1"),
     "negative seed": (simulated("seed=-1"), r"seed is -1: give a whole number >= 0 and <= 4294967295"),
     "no threads": (simulated("threads=0"), r"threads is 0: give a whole number >= 1"),
+    "marginal grid too coarse for the sphere": (
+        simulated("experiment=lord3dof", "model.refinement=marginal", "model.marginal_grid=200"),
+        r"model.marginal_grid=200 spaces the sphere's directions 14.4 degrees apart: give at least 1039",
+    ),
     "metric weight 0": (simulated("model.metric_weight=0"), r"model.metric_weight is 0: give a number > 0 \(0 drops the metric constraint"),
     "text metric weight": (simulated("model.metric_weight=abc"), r"model.metric_weight is 'abc': give a number > 0"),
     "negative known-load tolerance": (lambda t: calibrate(t, "data.known_load_tolerance=-0.1"), r"data.known_load_tolerance is -0.1: give a number >= 0"),

@@ -53,6 +53,8 @@ PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
 # measured on the orientation laws of bench/crb_ratio.py --laws (SNR 2-20).
 PRIOR_SMOOTHING = 3.0
+# The widest spacing (radians) of the marginal's direction grid.
+MARGINAL_GRID_SPACING = 0.11
 
 
 class ScaledBatch(NamedTuple):
@@ -218,8 +220,24 @@ class ShapeFromMotion(LinearCalibrator):
         self.log_noise = dense_parameter((torch.as_tensor(noise, dtype=self.shape.dtype) / self.reading_scale).log())
 
     def grid_size(self, dims: int) -> int:
-        """Directions in the marginal's grid: ``marginal_grid``, else 512 on a circle and 2000 on a sphere."""
-        return self.marginal_grid or (512 if dims == 2 else 2000)
+        """Directions in the marginal's grid: ``marginal_grid``, else 512 on a circle and 2000 on a sphere.
+
+        A grid coarser than :data:`MARGINAL_GRID_SPACING` is refused: it puts every sample on one of a few
+        directions (on the simulated 3-axis sensor, 200 directions 14 degrees apart gave 2.3 % matrix
+        error against 1.7 % with 2000, and 64 gave 17 %).
+        """
+        if self.marginal_grid is None:
+            return 512 if dims == 2 else 2000
+        area = 2 * math.pi if dims == 2 else 4 * math.pi
+        if dims <= 3 and (area / self.marginal_grid) ** (1 / (dims - 1)) > MARGINAL_GRID_SPACING:
+            least = math.ceil(area / MARGINAL_GRID_SPACING ** (dims - 1))
+            shape = "circle" if dims == 2 else "sphere"
+            raise SfmnetError(
+                f"model.marginal_grid={self.marginal_grid} spaces the {shape}'s directions "
+                f"{math.degrees((area / self.marginal_grid) ** (1 / (dims - 1))):.1f} degrees apart: give at least {least} "
+                f"(the marginal needs them within {math.degrees(MARGINAL_GRID_SPACING):.1f} degrees) or null"
+            )
+        return self.marginal_grid
 
     def grid_log_likelihood(self, rows: torch.Tensor, configuration: int) -> torch.Tensor:
         """``-|z_j - o - u_k D_c S|^2 / 2 s^2`` for ``b`` offset-free rows (``b x p``, dimensionless) and grid point ``k``: ``b x K``."""
