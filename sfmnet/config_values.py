@@ -12,7 +12,9 @@ Two sources say what a value must be:
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
+import inspect
 import math
 import pickle
 import types
@@ -232,14 +234,36 @@ def target_nodes(values: Any, prefix: str = "") -> list[tuple[str, dict, Callabl
 
 
 def check_arguments(key: str, node: dict, target: Callable) -> None:
-    """Each value of ``node`` against the annotation of the parameter it is passed to."""
+    """Each value of ``node`` against the annotation of the parameter it is passed to; a value no parameter takes
+    (``+data.foo=1``) is refused."""
     hints = parameter_hints(target)
     for name, value in node.items():
-        if name.startswith("_") or name not in hints:
+        if name.startswith("_"):
+            continue
+        if name not in hints:
+            if name not in parameter_names(target):
+                close = difflib.get_close_matches(name, sorted(hints), n=1, cutoff=0.6)
+                raise SfmnetError(
+                    f"{key}.{name} is not a setting of {key} ({node['_target_']})"
+                    + (f": did you mean {key}.{close[0]}?" if close else f": its settings are {', '.join(sorted(hints))}")
+                )
             continue
         problem = type_problem(value, hints[name], f"{key}.{name}")
         if problem:
             raise SfmnetError(problem)
+
+
+@functools.cache
+def parameter_names(target: Callable) -> set[str]:
+    """Every parameter name ``target`` (a class: any ``__init__`` of its bases) takes, annotated or not."""
+    functions = [klass.__init__ for klass in target.__mro__ if "__init__" in vars(klass)] if isinstance(target, type) else [target]
+    names: set[str] = set()
+    for function in functions:
+        try:
+            names.update(inspect.signature(function).parameters)
+        except (TypeError, ValueError):
+            continue
+    return names
 
 
 @functools.cache
