@@ -13,6 +13,9 @@ from sfmnet.data.recording import CalibrationRecording
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
 from sfmnet.models.contracts import FitMode
 
+# The unknown-load rows' unit directions ``u`` (``f' x d``) and maps ``D`` (``f' x d x n``): their loads are ``u D``.
+UnknownRows = tuple[torch.Tensor, torch.Tensor]
+
 Batch = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 
 
@@ -136,7 +139,7 @@ class LinearCalibrator(nn.Module, ABC):
         """The least-squares loads of readings under the current shape, ``f x n`` load units."""
         return (readings - self.physical_offset()) @ self.calibration_matrix().T
 
-    def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
+    def unknown_directions(self, recording: CalibrationRecording) -> UnknownRows:
         """Fitted unit directions ``u`` (``f' x d``) of the unknown-load rows and their maps ``D`` (``f' x d x n``).
 
         An unknown row's load is ``u D``; rows whose load is free (an unconstrained model) have
@@ -145,25 +148,29 @@ class LinearCalibrator(nn.Module, ABC):
         n = recording.rank
         return recording.loads[:0], recording.loads.new_zeros(0, n, n)
 
-    def unknown_loads(self, recording: CalibrationRecording) -> torch.Tensor:
-        """The fitted loads of the rows whose load is unknown, ``f' x n``."""
-        directions, maps = self.unknown_directions(recording)
+    def unknown_loads(self, recording: CalibrationRecording, unknown: UnknownRows | None = None) -> torch.Tensor:
+        """The fitted loads of the rows whose load is unknown, ``f' x n``; ``unknown``: :meth:`unknown_directions`
+        already computed."""
+        directions, maps = self.unknown_directions(recording) if unknown is None else unknown
         return torch.einsum("bd,bdn->bn", directions, maps)
 
-    def fitted_loads(self, recording: CalibrationRecording) -> torch.Tensor:
+    def fitted_loads(self, recording: CalibrationRecording, unknown: UnknownRows | None = None) -> torch.Tensor:
         """Each row's load, ``f x n``: the known one, else :meth:`unknown_loads`."""
         loads = recording.loads.clone()
-        loads[~recording.known] = self.unknown_loads(recording)
+        loads[~recording.known] = self.unknown_loads(recording, unknown)
         return loads
 
     def fitted_residuals(self, recording: CalibrationRecording, loads: torch.Tensor) -> torch.Tensor:
         """``z - m S - o`` per row (``f x p``) for the rows' ``loads`` (from :meth:`fitted_loads`)."""
         return recording.readings - loads @ self.physical_shape() - self.physical_offset()
 
-    def uncertainty(self, recording: CalibrationRecording, loads: torch.Tensor) -> CalibrationUncertainty:
-        """Cramer-Rao standard errors at the fitted solution (reading noise only); ``loads`` from :meth:`fitted_loads`."""
+    def uncertainty(
+        self, recording: CalibrationRecording, loads: torch.Tensor, unknown: UnknownRows | None = None
+    ) -> CalibrationUncertainty:
+        """Cramer-Rao standard errors at the fitted solution (reading noise only); ``loads`` from :meth:`fitted_loads`,
+        ``unknown``: :meth:`unknown_directions` already computed (each solves every row's direction again)."""
         residual = self.fitted_residuals(recording, loads)
-        directions, maps = self.unknown_directions(recording)
+        directions, maps = self.unknown_directions(recording) if unknown is None else unknown
         return calibration_uncertainty(
             self.physical_shape(),
             loads[recording.known],

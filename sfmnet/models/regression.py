@@ -15,7 +15,7 @@ from sfmnet.linalg.least_squares import (
 )
 from sfmnet.linalg.uncertainty import CalibrationUncertainty
 from sfmnet.models.least_squares import require_every_load
-from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, rms_norm
+from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, UnknownRows, rms_norm
 
 # Seeds the random K-fold split of rows without groups (the same split every run).
 FOLD_SEED = 0
@@ -102,7 +102,10 @@ class LoadRegression(LinearCalibrator):
         """The chosen ridge strength (logged with the training figures, so it reaches ``metrics.json``)."""
         return {"train/ridge_strength": self.strength} if self.ridge else {}
 
-    def uncertainty(self, recording: CalibrationRecording, loads: torch.Tensor) -> CalibrationUncertainty:
+    def uncertainty(
+        self, recording: CalibrationRecording, loads: torch.Tensor, unknown: UnknownRows | None = None
+    ) -> CalibrationUncertainty:
+        """The regression's standard errors (every row's load is known: ``unknown`` is unused)."""
         matrix_std, offset_std, noise_std = regression_standard_errors(
             recording.readings,
             recording.loads,

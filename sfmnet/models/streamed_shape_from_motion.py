@@ -28,7 +28,7 @@ from sfmnet.linalg.moments import (
 )
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
 from sfmnet.models.contracts import FitMode
-from sfmnet.models.linear_calibrator import LinearCalibrator
+from sfmnet.models.linear_calibrator import LinearCalibrator, UnknownRows
 
 REFINEMENTS = ("alternation", "closed_form")
 # Rounds the alternation mixes: one per pass, so a longer memory than in memory pays.
@@ -369,13 +369,15 @@ class StreamedShapeFromMotion(LinearCalibrator):
         n = self.rank
         return directions, magnitude * torch.eye(n, dtype=directions.dtype).expand(len(directions), n, n)
 
-    def uncertainty(self, recording: CalibrationRecording, loads: torch.Tensor) -> CalibrationUncertainty:
+    def uncertainty(
+        self, recording: CalibrationRecording, loads: torch.Tensor, unknown: UnknownRows | None = None
+    ) -> CalibrationUncertainty:
         """Cramer-Rao standard errors with the sampled rows standing for every unknown-load row.
 
         The noise comes from the last alternation pass's residuals over every row (from the
         sample, scaled, after the closed form alone).
         """
-        directions, maps = self.unknown_directions(recording)
+        directions, maps = self.unknown_directions(recording) if unknown is None else unknown
         weight = (float(self.moments.count) - len(self.known)) / len(directions)
         if self.passes > 2:
             residual = float(self.residual_squares.sum())

@@ -107,6 +107,12 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             ),
         )
 
+    @property
+    def rows(self) -> int:
+        """The file's rows, after :meth:`setup`."""
+        assert self.data is not None, "setup() runs first"
+        return sum(recording.rows for recording in self.data.recordings.values())
+
     def find_static_rows(self, recording: StreamedRecording, names: list[str]) -> StaticIntervals:
         """Detect the static intervals chunk by chunk and set ``recording.keep`` (unless the rows are independent poses)."""
         bad = recording.first_non_finite_row()

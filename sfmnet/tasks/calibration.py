@@ -44,8 +44,9 @@ class CalibrationTask(Task):
     def evaluate(self, fitted: FittedMethod, data: CalibrationData) -> MethodResult:
         model: LinearCalibrator = fitted.model
         recording = model.report_recording(data.recordings[model.recording])
-        loads = model.fitted_loads(recording)
-        uncertainty = model.uncertainty(recording, loads)
+        unknown = model.unknown_directions(recording)
+        loads = model.fitted_loads(recording, unknown)
+        uncertainty = model.uncertainty(recording, loads, unknown)
         diagnostics, warnings, goodness = calibration_diagnostics(
             model, recording, data.channels, loads, uncertainty, data.load_unit
         )
