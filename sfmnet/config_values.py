@@ -159,6 +159,11 @@ RULES: dict[str, Rule] = {
     "data.batch_size": Bound(int, low=1, nullable=True),
     "data.block_rows": Bound(int, low=1, nullable=True),
     "data.test_fraction": Bound(float, low=0, high=1, strict=True),
+    "data.train_rooms": Bound(int, low=1),
+    "data.test_rooms": Bound(int, low=1),
+    "data.episodes_per_room": Bound(int, low=1),
+    "data.steps": Bound(int, low=2),
+    "data.obstacles": Bound(int, low=0),
     "data.static.window": Bound(float, low=0, strict=True, nullable=True),
     "data.static.min_duration": Bound(float, low=0, strict=True, nullable=True),
     "data.static.threshold": Bound(float, low=0, strict=True, nullable=True),
@@ -169,6 +174,7 @@ RULES: dict[str, Rule] = {
         why="0 drops the metric constraint, leaving the calibration right only up to an affine map; the default is 1000",
     ),
     "model.alternation_steps": Bound(int, low=1),
+    "model.weight_decay": Bound(float, low=0, why="a negative decay pushes the weights apart"),
 }
 
 

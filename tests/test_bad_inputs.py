@@ -454,6 +454,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "fractional rank": (simulated("model.rank=2.5"), r"model.rank is 2.5: give a whole number >= 1"),
     "negative seed": (simulated("seed=-1"), r"seed is -1: give a whole number >= 0 and <= 4294967295"),
     "no threads": (simulated("threads=0"), r"threads is 0: give a whole number >= 1"),
+    "negative weight decay": (simulated("experiment=mkv_autoencoder", "model.weight_decay=-1"), r"model.weight_decay is -1: give a number >= 0"),
+    "a robot run of no steps": (simulated("experiment=mkv_pca", "data.steps=0"), r"data.steps is 0: give a whole number >= 2"),
     "a setting no one reads": (simulated("+data.sample=5"), r"data.sample is not a setting of data \(.*FingertipDataModule\): did you mean data.samples\?"),
     "marginal grid too coarse for the sphere": (
         simulated("experiment=lord3dof", "model.refinement=marginal", "model.marginal_grid=200"),
