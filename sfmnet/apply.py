@@ -43,6 +43,8 @@ def apply_calibration(calibration_path: Path, input_path: Path, output_path: Pat
         raise SfmnetError(f"{output_path} already exists: choose another output= or add overwrite=true")
     if output_path.resolve() == input_path.resolve():
         raise SfmnetError("output= is the input file: write the loads to a new file")
+    if output_path.resolve() == calibration_path.resolve():
+        raise SfmnetError("output= is the calibration file: write the loads to a new file")
     calibration = Calibration.load(calibration_path)
     if input_path.suffix in (".npy", ".npz", *WHITESPACE_SUFFIXES):
         raise SfmnetError(f"input={input_path} is not a CSV: apply copies the input's cells, so give it a CSV with a header row")

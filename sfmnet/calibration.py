@@ -122,6 +122,13 @@ class Calibration:
             raise SfmnetError(f"calibration file {path} lacks {', '.join(missing)}: give the calibration.json of a run")
         if not all(isinstance(raw[key], list) and all(isinstance(name, str) for name in raw[key]) for key in ("channels", "axes")):
             raise SfmnetError(f"calibration file {path}: channels and axes must be lists of names: give the calibration.json of a run")
+        for key in ("channels", "axes"):
+            twice = sorted({name for name in raw[key] if raw[key].count(name) > 1})
+            if twice:
+                raise SfmnetError(
+                    f"calibration file {path} names {key[:-1]} {', '.join(twice)} twice: each {key[:-1]} has one column; "
+                    "give the calibration.json of a run"
+                )
         matrix = numbers(raw, "matrix", path)
         offset = numbers(raw, "offset", path)
         if matrix.ndim != 2 or matrix.shape != (len(raw["axes"]), len(raw["channels"])) or offset.shape != (len(raw["channels"]),):

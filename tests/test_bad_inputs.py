@@ -112,6 +112,11 @@ def trained_calibration(tmp_path: Path) -> Path:
     return tmp_path / "run" / "calibration.json"
 
 
+def write_text(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
 def apply_to(tmp_path: Path, calibration: Path, readings_text: str | None = None, output_exists: bool = False) -> Action:
     source = tmp_path / "readings.csv"
     if readings_text is None:
@@ -412,6 +417,15 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "apply: .npz input": (
         lambda t: np.savez(t / "in.npz", s0=np.ones(3)) or (lambda: apply_calibration(trained_calibration(t), t / "in.npz", t / "out.csv", False)),
         r"input=.*in.npz is not a CSV",
+    ),
+    "apply: a channel named twice in the calibration": (
+        lambda t: apply_to(t, write_text(t / "c.json", '{"matrix": [[1, 2]], "offset": [0, 0], "channels": ["s0", "s0"], "axes": ["fx"]}')),
+        r"calibration file .*c.json names channel s0 twice",
+    ),
+    "apply: output is the calibration file": (
+        lambda t: apply_to(t, trained_calibration(t)) and (lambda: apply_calibration(
+            t / "run" / "calibration.json", t / "readings.csv", t / "run" / "calibration.json", True)),
+        r"output= is the calibration file: write the loads to a new file",
     ),
     "output path already exists": (lambda t: apply_to(t, trained_calibration(t), output_exists=True), r"loads.csv already exists: choose another output= or add overwrite=true"),
     # simulated sensors and other data modules
