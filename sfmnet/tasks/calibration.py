@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
+from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import method_title, motion_figure, spectrum_figure
 from sfmnet.eval.held_out import load_errors, magnitude_errors
@@ -129,13 +130,19 @@ class CalibrationTask(Task):
         return metrics
 
     def summary(self, results: dict[str, MethodResult], data: CalibrationData) -> list[str]:
+        """The static intervals, each method's headline (the main one's with the lines that say how far to
+        trust it), the warnings and the main method against the best baseline: one screen."""
         lines = [self.static_line] if self.static_line else []
+        main = next(iter(results))
         for result in results.values():
             lines.append(headline(result, data.load_unit))
-            if not result.metrics.get("error_bars_trustworthy", 1.0):
+            if result.name == main:
+                recording = data.recordings[result.model.recording]
+                lines.extend(trust_lines(result.metrics, data.channels, data.load_unit, recording.magnitude, recording.rank))
+            elif not result.metrics.get("error_bars_trustworthy", 1.0):
                 lines.append(f"  {result.name}: NOT TRUSTWORTHY: the checks below say the model does not describe this data")
             lines.extend(f"  warning ({result.name}): {warning}" for warning in result.warnings)
-        comparison = against_best_baseline(results, next(iter(results)))
+        comparison = against_best_baseline(results, main)
         return [*lines, comparison] if comparison else lines
 
 
