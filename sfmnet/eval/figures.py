@@ -4,6 +4,7 @@ human against learnt commands (paper Fig. 6), and a continuous recording's stati
 from __future__ import annotations
 
 import math
+import textwrap
 
 import matplotlib
 
@@ -59,6 +60,7 @@ def motion_figure(
     deviation = 100 * (m.norm(dim=1) / magnitude - 1)
     if stride > 1:
         title = f"{title} (every {ordinal(stride)} of {len(motion):,} samples)"
+    title = "\n".join(textwrap.wrap(title, 80))
     if n == 2:
         fig = plt.figure(figsize=(10, 4.2))
         polar = fig.add_subplot(1, 2, 1, projection="polar")

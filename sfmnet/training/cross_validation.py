@@ -114,6 +114,6 @@ def folds_figure(folds: list[FoldError], unit: str, known_groups: list[int]) -> 
     if known_groups:
         handles.append(Patch(color="0.88", label="known load:\nin every fit, not held out"))
     axes[0][-1].legend(handles=handles, **OUTSIDE_RIGHT)
-    figure.suptitle("Leave one group out: each method refitted without a group, its error on that group")
+    figure.suptitle("Leave one group out: each method refitted without a group, scored on it")
     figure.tight_layout()
     return figure
