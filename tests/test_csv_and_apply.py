@@ -39,6 +39,17 @@ def test_csv_contract_end_to_end(tmp_path: Path):
     assert calibration["channels"] == [f"s{i}" for i in range(6)] and calibration["axes"] == ["fx", "fy", "fz"]
     assert len(calibration["matrix_std"]) == 3 and len(calibration["offset_std"]) == 6
     assert float((matrix - truth).norm() / truth.norm()) < 0.02
+    # The headline says how far to trust the calibration, with the figures of metrics.json in load units.
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    headline = result.stdout
+    assert "channels     s0, s1, s2, s3, s4, s5 (6 channels)" in headline
+    assert f"coverage     {metrics['coverage']:.2f} of the sphere" in headline
+    assert f"residuals    {metrics['load_residual/force_rms']:.4g} N RMS in load units" in headline
+    assert (
+        f"known loads  {metrics['goodness/known_load_rms']:.4g} N RMS per axis from where the calibration puts them "
+        f"({metrics['goodness/known_load_pct']:.3g} % of their size)" in headline
+    )
+    assert "error bars   trustworthy" in headline
 
     output = tmp_path / "loads.csv"
     applied = sfmnet("apply", f"calibration={run_dir / 'calibration.json'}", f"input={session}", f"output={output}")
@@ -48,6 +59,20 @@ def test_csv_contract_end_to_end(tmp_path: Path):
     assert rows[0]["time"] == "0.00"  # the input's columns are kept as they were
     magnitudes = [math.dist([0, 0, 0], [float(r[f"{a}_calibrated"]) for a in ["fx", "fy", "fz"]]) for r in rows]
     assert abs(np.mean(magnitudes) / 9.81 - 1) < 0.005
+    # The residual in load units is the calibrated loads' departure from the fitted ones: off |load| = F
+    # on the unknown rows, off the given load on the known ones (10 %: the fitted direction is not
+    # exactly the calibrated load's; a residual in raw units would be 10x off).
+    departures = [
+        math.dist([float(r[a]) for a in ["fx", "fy", "fz"]], [float(r[f"{a}_calibrated"]) for a in ["fx", "fy", "fz"]])
+        if r["fx"] else abs(size - 9.81)
+        for r, size in zip(rows, magnitudes)
+    ]
+    assert math.isclose(float(np.sqrt(np.mean(np.square(departures)))), metrics["load_residual/force_rms"], rel_tol=0.1)
+    known = [r for r in rows if r["fx"]]
+    applied_known = np.array([[float(r[f"{a}_calibrated"]) for a in ["fx", "fy", "fz"]] for r in known])
+    given = np.array([[float(r[a]) for a in ["fx", "fy", "fz"]] for r in known])
+    percent = 100 * np.sqrt(np.mean((applied_known - given) ** 2)) / np.sqrt(np.mean(given**2))
+    assert math.isclose(percent, metrics["goodness/known_load_pct"], rel_tol=1e-3)
 
 
 def test_npz_input(tmp_path: Path):

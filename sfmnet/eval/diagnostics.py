@@ -34,7 +34,8 @@ def calibration_diagnostics(
         ``rank_gap`` (singular value n over n+1 of the readings, where ``p > n``),
         ``condition_number`` (of the calibration matrix), ``coverage`` (shape from motion: 1 for
         orientations spread over the whole circle or sphere), ``residual_rms/<channel>`` (raw
-        units) and the :func:`~sfmnet.eval.goodness_of_fit.goodness_of_fit` figures; the warnings
+        units), the residuals in load units (:func:`load_residuals`) and the
+        :func:`~sfmnet.eval.goodness_of_fit.goodness_of_fit` figures; the warnings
         (goodness-of-fit ones included); the goodness of fit itself.
     """
     n = recording.rank
@@ -62,6 +63,7 @@ def calibration_diagnostics(
     residuals = model.fitted_residuals(recording, loads)
     residual = residuals.pow(2).mean(dim=0).sqrt()
     metrics.update({f"residual_rms/{name}": float(value) for name, value in zip(channels, residual)})
+    metrics.update(load_residuals(residuals, matrix))
     # An unconstrained row's load is free in all n dimensions; a constrained one has d - 1 free.
     direction_dims = recording.maps.shape[1] if model.constrained else recording.rank + 1
     known = recording.known
@@ -82,6 +84,25 @@ def calibration_diagnostics(
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
+
+
+def load_residuals(residuals: torch.Tensor, matrix: torch.Tensor) -> dict[str, float]:
+    """The residuals in load units: RMS over rows of ``|C r_j|``, the force axes (first up to three) and the rest.
+
+    ``C (z - o) = m + C r`` (``C S = I``), so ``C r_j`` is how far the calibration puts row ``j``'s
+    load from the load the fit gave it: off the known load, or off the constant magnitude ``F``.
+
+    Args:
+        residuals: ``f x p``, ``z - m S - o`` (raw units); matrix: ``C``, ``n x p``.
+
+    Returns:
+        ``load_residual/force_rms`` and, with more than three axes, ``load_residual/torque_rms`` (load units).
+    """
+    loads = residuals @ matrix.T
+    metrics = {"load_residual/force_rms": float(loads[:, :3].pow(2).sum(dim=1).mean().sqrt())}
+    if loads.shape[1] > 3:
+        metrics["load_residual/torque_rms"] = float(loads[:, 3:].pow(2).sum(dim=1).mean().sqrt())
+    return metrics
 
 
 def same_load_groups(recording: CalibrationRecording) -> torch.Tensor | None:

@@ -211,7 +211,8 @@ def goodness_of_fit(
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
         ``goodness/pose_misfit_ratio`` (:func:`pose_misfit_ratio`; with groups),
         ``goodness/outliers``, ``goodness/outlier_fraction``, ``goodness/robust_noise``,
-        ``goodness/known_load_rms`` and ``goodness/known_load_ratio`` (with known loads),
+        ``goodness/known_load_rms``, ``goodness/known_load_ratio`` and ``goodness/known_load_pct``
+        (the RMS as a percentage of the known loads' own RMS) (with known loads),
         ``goodness/constraint_noise_ratio`` (with ``constraint``).
     """
     p = residuals.shape[1]
@@ -267,7 +268,10 @@ def goodness_of_fit(
         rms, ratio = known_load_misfit(
             calibrated_known, known_loads, matrix, fit_noise, None if groups is None else groups[known]
         )
+        size = float(known_loads.pow(2).mean().sqrt())
         metrics.update({"goodness/known_load_rms": rms, "goodness/known_load_ratio": ratio})
+        if size > 0:
+            metrics["goodness/known_load_pct"] = 100 * rms / size
         if ratio > MAX_KNOWN_LOAD_RATIO:
             warnings.append(
                 f"the known loads sit {rms:.4g} {load_unit} RMS from where the calibration puts them, {ratio:.1f}x "

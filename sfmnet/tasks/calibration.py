@@ -18,14 +18,21 @@ from pathlib import Path
 import torch
 
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
+from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.eval.diagnostics import calibration_diagnostics
-from sfmnet.eval.figures import motion_figure, spectrum_figure
+from sfmnet.eval.figures import method_title, motion_figure, spectrum_figure
 from sfmnet.eval.held_out import load_errors, magnitude_errors
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.models.linear_calibrator import LinearCalibrator
 from sfmnet.tasks.base import FittedMethod, MethodResult, Task
 from sfmnet.training.components import build_logger, publish_figure
-from sfmnet.training.cross_validation import folds_figure, leave_one_group_out, summarise_folds, write_folds
+from sfmnet.training.cross_validation import (
+    folds_figure,
+    known_load_groups,
+    leave_one_group_out,
+    summarise_folds,
+    write_folds,
+)
 from sfmnet.training.learner_module import matrix_error
 from sfmnet.training.static_report import report_static_intervals
 
@@ -94,7 +101,7 @@ class CalibrationTask(Task):
             errors = magnitude_errors(calibration, data.test.readings, data.test.groups, data.test.magnitude)
             metrics.update({f"test/{key}": value for key, value in errors.items()})
         if fitted.trainer.is_global_zero:
-            draw_figures(fitted, recording, data.load_unit)
+            draw_figures(fitted, recording, data.load_unit, data.axes)
         return MethodResult(fitted.name, metrics, warnings, calibration, model)
 
     def after_fits(self, data: CalibrationData, results: dict[str, MethodResult], run_dir: Path) -> None:
@@ -109,7 +116,7 @@ class CalibrationTask(Task):
         for name, summary in summarise_folds(folds).items():
             results[name].metrics.update({f"lopo/{key}": value for key, value in summary.items()})
         write_folds(folds, run_dir / "leave_one_group_out.csv")
-        figure = folds_figure(folds, data.load_unit)
+        figure = folds_figure(folds, data.load_unit, known_load_groups(data, main.model.recording))
         publish_figure(figure, run_dir / "figures" / "leave_one_group_out.png", "leave_one_group_out",
                        build_logger(self.cfg, run_dir, "leave_one_group_out"))
 
@@ -124,30 +131,43 @@ class CalibrationTask(Task):
         return metrics
 
     def summary(self, results: dict[str, MethodResult], data: CalibrationData) -> list[str]:
+        """The static intervals, each method's headline (the main one's with the lines that say how far to
+        trust it), the warnings and the main method against the best baseline: one screen."""
         lines = [self.static_line] if self.static_line else []
+        main = next(iter(results))
         for result in results.values():
             lines.append(headline(result, data.load_unit))
-            if not result.metrics.get("error_bars_trustworthy", 1.0):
+            if result.name == main:
+                recording = data.recordings[result.model.recording]
+                lines.extend(trust_lines(result.metrics, data.channels, data.load_unit, recording.magnitude, recording.rank))
+            elif not result.metrics.get("error_bars_trustworthy", 1.0):
                 lines.append(f"  {result.name}: NOT TRUSTWORTHY: the checks below say the model does not describe this data")
             lines.extend(f"  warning ({result.name}): {warning}" for warning in result.warnings)
-        comparison = against_best_baseline(results, next(iter(results)))
+        comparison = against_best_baseline(results, main)
         return [*lines, comparison] if comparison else lines
 
 
-def draw_figures(fitted: FittedMethod, recording: CalibrationRecording, unit: str) -> None:
+def draw_figures(fitted: FittedMethod, recording: CalibrationRecording, unit: str, axes: list[str]) -> None:
     """The spectrum and (constrained models) the calibrated readings: PNGs in the run directory and in TensorBoard."""
     name, model = fitted.name, fitted.model
-    figures = {"spectrum": spectrum_figure(model.singular_values, recording.rank, f"{name}: singular values of the readings")}
+    words = method_title(name)
+    figures = {
+        "spectrum": spectrum_figure(
+            model.singular_values, recording.rank, f"{words}: singular values of the readings", "raw reading units"
+        )
+    }
     if model.constrained:
         # The calibrated readings, not the constraint-pulled motion: they show the noise.
         unknown = ~recording.known
         if recording.direction_maps is None:
             motion = model.motion_of(recording.readings[unknown])
-            figure = motion_figure(motion, recording.magnitude, unit, f"{name}: recovered motion")
+            title = f"{words}: calibrated loads of the samples of unknown orientation"
+            figure = motion_figure(motion, recording.magnitude, unit, title, axes)
         else:
             readings = recording.readings[unknown] / model.reading_scale
             directions = model.directions(readings, recording.row_configuration[unknown], 0.0)
-            figure = motion_figure(directions, 1.0, "g", f"{name}: recovered gravity directions")
+            title = f"{words}: recovered gravity directions of the samples of unknown orientation"
+            figure = motion_figure(directions, 1.0, "g", title, ["gravity x", "gravity y", "gravity z"])
         if figure is not None:
             figures["motion"] = figure
     for tag, figure in figures.items():

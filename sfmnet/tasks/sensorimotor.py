@@ -20,7 +20,7 @@ import torch
 
 from sfmnet.data.sensorimotor import SensorimotorData
 from sfmnet.eval.command_metrics import command_metrics
-from sfmnet.eval.figures import commands_figure, spectrum_figure
+from sfmnet.eval.figures import commands_figure, method_title, spectrum_figure
 from sfmnet.io import save_npz_atomic, write_csv_atomic
 from sfmnet.linalg.factorisation import truncated_svd_factors
 from sfmnet.linalg.subspace import principal_angles_deg
@@ -84,12 +84,16 @@ def draw_figures(fitted: FittedMethod, data: SensorimotorData, reading: CommandR
     labels = [np.array(c.labels, dtype=object) for c in data.commands]
     human = np.stack([labels[i][episode.commands[:, i]] for i in range(len(labels))], axis=1)
     learned = np.stack([labels[i][reading.commands[:, i]] for i in range(len(labels))], axis=1)
+    words = method_title(name)
     figures = {
         "commands": commands_figure(
-            data.period, [c.name for c in data.commands], human, learned, reading.confidence,
-            f"{name}: human and learnt commands on a held-out run (paper Fig. 6)",
+            data.period, [c.name for c in data.commands], [list(c.labels) for c in data.commands], human, learned,
+            reading.confidence, f"{words}: human and learnt commands on a held-out run (paper Fig. 6)",
         ),
-        "spectrum": spectrum_figure(model.singular_values, model.rank, f"{name}: singular values, chosen rank {model.rank}"),
+        "spectrum": spectrum_figure(
+            model.singular_values, model.rank, f"{words}: singular values of the training vectors",
+            "standardised units",
+        ),
     }
     for tag, figure in figures.items():
         png = fitted.run_dir / "figures" / f"{name}_{tag}.png"

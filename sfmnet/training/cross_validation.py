@@ -5,15 +5,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
 from hydra.utils import instantiate
 from matplotlib import pyplot as plt
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 from omegaconf import DictConfig
 from tqdm import tqdm
 
 from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData
+from sfmnet.eval.figures import OUTSIDE_RIGHT
 from sfmnet.eval.held_out import load_errors
 from sfmnet.io import write_csv_atomic
 from sfmnet.training.fitting import fit
@@ -27,13 +28,17 @@ class FoldError:
     errors: dict[str, float]
 
 
-def held_out_groups(data: CalibrationData, recording: str) -> list[int]:
-    """Groups of ``recording`` with no known load: holding out a known pose would change the method, not test it."""
+def known_load_groups(data: CalibrationData, recording: str) -> list[int]:
+    """Groups of ``recording`` holding a known load: they fix the frame, so they are in every fit and never held out."""
     rec = data.recordings[recording]
     if rec.groups is None:
         raise ValueError(f"recording {recording} has no groups")
-    known_groups = set(rec.groups[rec.known].tolist())
-    return sorted(set(rec.groups.tolist()) - known_groups)
+    return sorted(set(rec.groups[rec.known].tolist()))
+
+
+def held_out_groups(data: CalibrationData, recording: str) -> list[int]:
+    """Groups of ``recording`` with no known load: holding out a known pose would change the method, not test it."""
+    return sorted(set(data.recordings[recording].groups.tolist()) - set(known_load_groups(data, recording)))
 
 
 def leave_one_group_out(
@@ -76,22 +81,39 @@ def write_folds(folds: list[FoldError], path: Path) -> None:
     write_csv_atomic(path, ["method", "group", "rows", *keys], [[f.method, f.group, f.rows, *f.errors.values()] for f in folds])
 
 
-def folds_figure(folds: list[FoldError], unit: str) -> Figure:
-    """Held-out force (and torque) error per group, methods side by side."""
+def folds_figure(folds: list[FoldError], unit: str, known_groups: list[int]) -> Figure:
+    """Held-out force (and torque) error per group, methods side by side; the known-load groups, never held out, marked.
+
+    Args:
+        unit: the load unit, ``"<force unit>[, <torque unit>]"``.
+        known_groups: groups with a known load (in every fit, so they have no held-out error).
+    """
     keys = list(folds[0].errors)
+    force_unit, _, torque_unit = unit.partition(", ")
+    units = {"force_rms": force_unit, "torque_rms": torque_unit or "N m"}
+    labels = {"force_rms": "held-out force error", "torque_rms": "held-out torque error"}
     methods = list(dict.fromkeys(f.method for f in folds))
-    groups = sorted({f.group for f in folds})
-    figure, axes = plt.subplots(1, len(keys), figsize=(5 * len(keys), 3.5), squeeze=False)
+    groups = sorted({f.group for f in folds} | set(known_groups))
+    slot = {g: i for i, g in enumerate(groups)}
+    figure, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys) + 1.5, 3.6), squeeze=False)
     width = 0.8 / len(methods)
     for axis, key in zip(axes[0], keys):
         for i, method in enumerate(methods):
-            values = {f.group: f.errors[key] for f in folds if f.method == method}
-            positions = torch.arange(len(groups)) + i * width
-            axis.bar(positions.tolist(), [values[g] for g in groups], width=width, label=method)
-        axis.set_xticks([g + 0.4 - width / 2 for g in range(len(groups))], [str(g) for g in groups])
-        axis.set_xlabel("held-out group (pose)")
-        axis.set_ylabel(f"{key} ({unit.split(', ')[0] if key == 'force_rms' else 'N m'})")
-        axis.legend(fontsize=8)
-    figure.suptitle("leave-one-group-out error")
+            mine = [f for f in folds if f.method == method]
+            positions = [slot[f.group] - 0.4 + (i + 0.5) * width for f in mine]
+            axis.bar(positions, [f.errors[key] for f in mine], width=width, label=method.replace("_", " "))
+        for group in known_groups:
+            axis.axvspan(slot[group] - 0.45, slot[group] + 0.45, color="0.88", linewidth=0)
+            axis.text(slot[group], 0.5, "known load", rotation=90, ha="center", va="center", fontsize=8, color="0.35",
+                      transform=axis.get_xaxis_transform())
+        axis.set_xticks(range(len(groups)), [str(g) for g in groups])
+        axis.set_xlim(-0.6, len(groups) - 0.4)
+        axis.set_xlabel("held-out group (pose number)")
+        axis.set_ylabel(f"{labels.get(key, key)}, RMS ({units.get(key, unit)})")
+    handles, _ = axes[0][-1].get_legend_handles_labels()
+    if known_groups:
+        handles.append(Patch(color="0.88", label="known load:\nin every fit, not held out"))
+    axes[0][-1].legend(handles=handles, **OUTSIDE_RIGHT)
+    figure.suptitle("Leave one group out: each method refitted without a group, scored on it")
     figure.tight_layout()
     return figure

@@ -1,0 +1,66 @@
+"""The few lines under a calibration's headline that say how far to trust it, on a user's own data too.
+
+They need no reference sensor: the channels fitted, how much of the load space the samples
+visited, the residuals in load units, the known loads' misfit and whether the error bars can be
+believed (every goodness-of-fit check passed). The figures are those of ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from sfmnet.eval.diagnostics import WARN_COVERAGE
+
+# Channel names listed in full up to this many characters; beyond, the first ones and a count.
+CHANNELS_WIDTH = 70
+
+
+def trust_lines(metrics: dict[str, float], channels: list[str], load_unit: str, magnitude: float, axes: int) -> list[str]:
+    """Indented lines: channels, coverage, residuals (load and raw units), known loads, error bars.
+
+    Args:
+        metrics: the method's metrics (``coverage``, ``residual_rms``, ``load_residual/*``, ``goodness/*``, ...).
+        channels: the channels fitted; load_unit: ``"N"``, or ``"N, N m"`` for force and torque.
+        magnitude: ``F``, the calibration load's constant magnitude (load units); NaN where there is none.
+        axes: ``n``, the load axes.
+    """
+    force_unit, _, torque_unit = load_unit.partition(", ")
+    lines = [f"channels     {channel_list(channels)}"]
+    if "coverage" in metrics:
+        space = "circle" if axes == 2 else "sphere"
+        lines.append(
+            f"coverage     {metrics['coverage']:.2f} of the {space} of load directions "
+            f"(1 = every direction visited; below {WARN_COVERAGE:g} warns)"
+        )
+    if "load_residual/force_rms" in metrics:
+        residual = f"{metrics['load_residual/force_rms']:.4g} {force_unit} RMS in load units"
+        if math.isfinite(magnitude) and magnitude > 0 and torque_unit == "":
+            residual += f" ({100 * metrics['load_residual/force_rms'] / magnitude:.3g} % of F = {magnitude:g} {force_unit})"
+        if "load_residual/torque_rms" in metrics:
+            residual += f", torque {metrics['load_residual/torque_rms']:.4g} {torque_unit or 'N m'} RMS"
+        lines.append(f"residuals    {residual}; {metrics['residual_rms']:.4g} raw units RMS per channel")
+    if "goodness/known_load_rms" in metrics:
+        percent = f" ({metrics['goodness/known_load_pct']:.3g} % of their size)" if "goodness/known_load_pct" in metrics else ""
+        lines.append(
+            f"known loads  {metrics['goodness/known_load_rms']:.4g} {load_unit if not torque_unit else 'load units'} RMS "
+            "per axis from where the calibration puts them"
+            f"{percent}, {metrics['goodness/known_load_ratio']:.2g}x what the noise explains"
+        )
+    else:
+        lines.append("known loads  none given: the load frame is arbitrary (magnitudes are right)")
+    if metrics.get("error_bars_trustworthy", 1.0):
+        lines.append("error bars   trustworthy: every goodness-of-fit check passed")
+    else:
+        lines.append("error bars   NOT TRUSTWORTHY: a goodness-of-fit check failed (the warnings say which)")
+    return [f"    {line}" for line in lines]
+
+
+def channel_list(channels: list[str]) -> str:
+    """``a, b, c (3)``, or the first names that fit :data:`CHANNELS_WIDTH` and how many more."""
+    shown: list[str] = []
+    for name in channels:
+        if len(", ".join([*shown, name])) > CHANNELS_WIDTH:
+            break
+        shown.append(name)
+    more = f", ... and {len(channels) - len(shown)} more" if len(shown) < len(channels) else ""
+    return f"{', '.join(shown)}{more} ({len(channels)} channels)"
