@@ -107,7 +107,7 @@ def calibrate(
         "magnitude": None if magnitude is None else as_number(magnitude, "magnitude"),
     }
     if time is not None:
-        stamps = np.asarray(time, dtype=np.float64)
+        stamps = as_float_array(time, "time", "one time (s) per reading")
         if stamps.shape != (f,):
             raise SfmnetError(f"time has shape {stamps.shape} but readings has {f} rows: give one time (s) per reading")
         columns[TIME_COLUMN] = stamps
@@ -128,23 +128,26 @@ def as_number(value: Any, name: str) -> float:
 
 def as_matrix(values: Any, name: str) -> np.ndarray:
     """``values`` as a 2-D float64 numpy array (from numpy, torch or lists), or a one-line error."""
-    values = as_real(values, name)
-    if hasattr(values, "detach"):
-        values = values.detach().cpu().numpy()
-    try:
-        array = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError) as error:
-        raise SfmnetError(f"{name} is not a numeric array ({error}): give an (f, p) array of numbers") from None
+    array = as_float_array(values, name, "an (f, p) array of numbers")
     if array.ndim != 2 or 0 in array.shape:
         raise SfmnetError(f"{name} has shape {array.shape}: give a 2-D array, one row per sample")
     return array
 
 
-def as_real(values: Any, name: str) -> Any:
-    """Complex input would lose its imaginary part without a word: refuse it."""
-    if np.iscomplexobj(values) or (hasattr(values, "is_complex") and values.is_complex()):
+def as_float_array(values: Any, name: str, wanted: str) -> np.ndarray:
+    """``values`` (numpy, torch or nested lists) as float64; ragged, text or complex values are one line naming ``name``."""
+    if hasattr(values, "detach"):  # a torch tensor (torch is not imported until a fit)
+        values = values.detach().cpu().numpy()
+    try:
+        array = np.asarray(values)
+    except ValueError as error:
+        raise SfmnetError(f"{name} is not a numeric array ({error}): give {wanted}") from None
+    if np.iscomplexobj(array):
         raise SfmnetError(f"{name} is complex: give real raw readings")
-    return values
+    try:
+        return array.astype(np.float64)
+    except (TypeError, ValueError) as error:
+        raise SfmnetError(f"{name} is not a numeric array ({error}): give {wanted}") from None
 
 
 def calibration_config(data: Mapping[str, Any], overrides: Mapping[str, Any], verbose: bool) -> DictConfig:

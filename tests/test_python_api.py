@@ -82,6 +82,9 @@ def test_config_overrides_reach_the_fit(tmp_path: Path):
     [
         ({"readings": np.ones(5)}, r"readings has shape \(5,\): give a 2-D array"),
         ({"readings": [["a", "b"]]}, r"readings is not a numeric array"),
+        ({"readings": [[1.0, 2.0], [3.0]]}, r"readings is not a numeric array \(.*inhomogeneous"),
+        ({"readings": np.ones((4, 6)) + 1j}, r"readings is complex: give real raw readings"),
+        ({"time": ["noon"] * 99}, r"time is not a numeric array"),
         ({"loads": np.full((7, 3), np.nan)}, r"loads has 7 rows but readings has 99"),
         ({"time": np.arange(3.0)}, r"time has shape \(3,\) but readings has 99 rows"),
         ({"channels": ["a"] * 6}, r"give 6 distinct channel names"),
