@@ -114,6 +114,9 @@ def start(args: Sequence[str], cwd: Path, env: dict[str, str] | None = None) -> 
     return subprocess.Popen(
         list(args), cwd=cwd, env=env or environment(), stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, errors="replace", start_new_session=True,
+        # As from a terminal: a trial started under nohup or from a background job would otherwise inherit an
+        # ignored SIGINT, and its Ctrl-C case would test nothing.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
 
 
