@@ -8,6 +8,7 @@ default command because Lightning's DDP launcher restarts worker processes as
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 from collections.abc import Callable, Iterator
@@ -104,6 +105,8 @@ def train_command() -> None:
 
     @hydra.main(version_base="1.3", config_path=config_dir(), config_name="train")
     def task(cfg: DictConfig) -> None:
+        # Python's warnings too go to the console and train.log through Hydra's job logging (sfmnet/console.py).
+        logging.captureWarnings(True)
         exit_on_user_error(lambda: train(cfg, Path(HydraConfig.get().runtime.output_dir)))
 
     task()
