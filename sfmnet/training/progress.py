@@ -44,7 +44,7 @@ class Bar(TQDMProgressBar):
 
 
 class EpochLines(LightningProgressBar):
-    """One line per finished epoch: ``<method> epoch 3/10: loss 0.0001451, error/matrix_relative 0.02134``."""
+    """One line per finished epoch: ``<method> epoch 3/10: loss_epoch 0.0001451, error/matrix_relative 0.02134``."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -72,11 +72,13 @@ class EpochLines(LightningProgressBar):
         if not self.enabled or epoch <= self.reported_epoch or epoch < 0:
             return
         self.reported_epoch = epoch
-        method = trainer.logger.version if trainer.logger is not None and isinstance(trainer.logger.version, str) else ""
+        # The run loop names each method's logger version after the method.
+        version = trainer.logger.version if trainer.logger is not None else None
+        method = f"{version} " if isinstance(version, str) else ""
         total = f"/{trainer.max_epochs}" if trainer.max_epochs and trainer.max_epochs > 0 else ""
         metrics = ", ".join(f"{key} {value:.4g}" if isinstance(value, float) else f"{key} {value}"
                             for key, value in epoch_metrics(shown_metrics(self.get_metrics(trainer, pl_module))).items())
-        log.info(f"{method} epoch {epoch + 1}{total}: {metrics}".lstrip())
+        log.info(f"{method}epoch {epoch + 1}{total}: {metrics}")
 
 
 def each_with_progress(items: Sequence[Item], description: str, enabled: bool = True) -> Iterator[Item]:

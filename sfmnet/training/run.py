@@ -116,7 +116,7 @@ def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | No
     metrics = task.write(results, data, run_dir)
     write_json_atomic(run_dir / "metrics.json", metrics)
     for name, fitted in fits.items():
-        log_final_figures(fitted.logger, fitted.settings, methods_metrics(metrics, name, list(results)),
+        log_final_figures(fitted.logger, fitted.settings, method_metrics(metrics, name, list(results)),
                           results[name].series, fitted.trainer.global_step)
     log.info(f"run directory: {run_dir}")
     for line in task.summary(results, data):
@@ -127,7 +127,7 @@ def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | No
     return metrics
 
 
-def methods_metrics(metrics: Metrics, name: str, methods: list[str]) -> Metrics:
+def method_metrics(metrics: Metrics, name: str, methods: list[str]) -> Metrics:
     """``name``'s figures among the run's ``metrics`` (``metrics.json``: the main method's, the first of ``methods``,
     unprefixed; each baseline's under ``<name>/``)."""
     main, *baselines = methods
