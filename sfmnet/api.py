@@ -203,6 +203,7 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
 
     from sfmnet.cli import unwrapped_user_errors
     from sfmnet.config_values import check_config
+    from sfmnet.console import lines_to_stdout
     from sfmnet.training.run import train
     from sfmnet.training.run_directory import claim_run_dir, release_run_dir
 
@@ -211,8 +212,7 @@ def run_calibration(cfg: DictConfig, table: Any, run_dir: str | Path | None, ver
             run_dir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="sfmnet-"))) / "run"
         claim_run_dir(Path(run_dir), "run_dir")
         stack.callback(release_run_dir, Path(run_dir))
-        if not verbose:
-            stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
+        stack.enter_context(lines_to_stdout() if verbose else contextlib.redirect_stdout(io.StringIO()))
         # The data module is built here, before train() checks the config: check it first.
         check_config(cfg)
         with unwrapped_user_errors():

@@ -8,6 +8,7 @@ default command because Lightning's DDP launcher restarts worker processes as
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 from collections.abc import Callable, Iterator
@@ -112,6 +113,8 @@ def train_command() -> None:
 
     @hydra.main(version_base="1.3", config_path=config_dir(), config_name="train")
     def task(cfg: DictConfig) -> None:
+        # Python's warnings too go to the console and train.log through Hydra's job logging (sfmnet/console.py).
+        logging.captureWarnings(True)
         run_dir = Path(HydraConfig.get().runtime.output_dir)
         # A refused single run gives its directory back; a sweep's jobs keep theirs beside the others.
         single = HydraConfig.get().mode == RunMode.RUN

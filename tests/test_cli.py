@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import shutil
@@ -48,17 +47,6 @@ def test_command_word_is_optional(tmp_path: Path):
     result = sfmnet(f"hydra.run.dir={tmp_path / 'run'}", "trainer.fast_dev_run=true", *QUIET)
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "run" / "calibration.json").is_file()
-
-
-def test_multirun_sweep_writes_summary(tmp_path: Path):
-    sweep_dir = tmp_path / "sweep"
-    result = sfmnet(
-        "train", "-m", "data.samples=48,96", "trainer.max_epochs=2", f"hydra.sweep.dir={sweep_dir}", *QUIET
-    )
-    assert result.returncode == 0, result.stderr
-    rows = list(csv.DictReader((sweep_dir / "sweep.csv").open()))
-    assert [row["data.samples"] for row in rows] == ["48", "96"]
-    assert all(float(row["eval/max_error_pct"]) >= 0 for row in rows)
 
 
 @pytest.mark.parametrize(

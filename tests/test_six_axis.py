@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 from omegaconf import OmegaConf
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sfmnet.readers.csv_calibration import CsvCalibrationDataModule
 from sfmnet.simulators.simulated_force_torque import ForceTorqueSensorDataModule
@@ -128,4 +129,11 @@ def test_real_sensor_three_known_poses_beside_least_squares(run_dir: Path):
     assert metrics["least_squares/lopo/force_rms"] < 0.35
     assert metrics["regression/lopo/force_rms"] < 1.2
     assert (run_dir / "figures" / "leave_one_group_out.png").is_file()
-    assert len((run_dir / "leave_one_group_out.csv").read_text().splitlines()) == 1 + 3 * 9
+    folds = list(csv.DictReader((run_dir / "leave_one_group_out.csv").open()))
+    assert len(folds) == 3 * 9
+    # Each held-out pose's error is a TensorBoard scalar too, stepped by the pose.
+    events = EventAccumulator(str(run_dir / "tensorboard" / "least_squares"))
+    events.Reload()
+    logged = {event.step: event.value for event in events.Scalars("leave_one_group_out/force_rms")}
+    expected = {int(f["group"]): float(f["force_rms"]) for f in folds if f["method"] == "least_squares"}
+    assert logged == pytest.approx(expected, rel=1e-6)

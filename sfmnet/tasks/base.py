@@ -33,6 +33,7 @@ class FittedMethod:
         seconds: wall time of the fit.
         logger: its logger (TensorBoard), or None.
         run_dir: the run directory.
+        settings: its settings as the logger's hyperparameters (:func:`sfmnet.training.tensorboard_summary.run_settings`).
     """
 
     name: str
@@ -41,17 +42,21 @@ class FittedMethod:
     seconds: float
     logger: Logger | None
     run_dir: Path
+    settings: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
 class MethodResult:
-    """What one fitted method leaves behind: its flat metrics, warnings, the task's own result object and the model."""
+    """What one fitted method leaves behind: its flat metrics, warnings, the task's own result object and the model;
+    ``series``: figures over items (tag to ``{item number: value}``, e.g. the error per held-out group), logged as
+    TensorBoard scalars stepped by item."""
 
     name: str
     metrics: dict[str, float]
     warnings: list[str] = field(default_factory=list)
     result: Any = None
     model: Learner | None = None
+    series: dict[str, dict[int, float]] = field(default_factory=dict)
 
 
 class Task(ABC):

@@ -115,6 +115,9 @@ class CalibrationTask(Task):
         folds = leave_one_group_out(self.cfg, data, model_cfgs, main.model.recording, progress)
         for name, summary in summarise_folds(folds).items():
             results[name].metrics.update({f"lopo/{key}": value for key, value in summary.items()})
+        for fold in folds:
+            for key, value in fold.errors.items():
+                results[fold.method].series.setdefault(f"leave_one_group_out/{key}", {})[fold.group] = value
         write_folds(folds, run_dir / "leave_one_group_out.csv")
         figure = folds_figure(folds, data.load_unit, known_load_groups(data, main.model.recording))
         publish_figure(figure, run_dir / "figures" / "leave_one_group_out.png", "leave_one_group_out",

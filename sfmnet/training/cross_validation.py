@@ -10,7 +10,6 @@ from matplotlib import pyplot as plt
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from omegaconf import DictConfig
-from tqdm import tqdm
 
 from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData
@@ -18,6 +17,7 @@ from sfmnet.eval.figures import OUTSIDE_RIGHT
 from sfmnet.eval.held_out import load_errors
 from sfmnet.io import write_csv_atomic
 from sfmnet.training.fitting import fit
+from sfmnet.training.progress import each_with_progress
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,7 @@ def leave_one_group_out(
     so every method is scored on the same rows. The error is against the rows' true loads.
     """
     folds = []
-    for group in tqdm(held_out_groups(data, main_recording), desc="leave one group out", disable=not progress):
+    for group in each_with_progress(held_out_groups(data, main_recording), "leave one group out", progress):
         fold = FixedCalibrationDataModule(data.without_group(group))
         for name, model_cfg in models.items():
             model = instantiate(model_cfg)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from pathlib import Path
 
@@ -17,6 +18,8 @@ from sfmnet.data.recording import CalibrationRecording
 from sfmnet.models.linear_calibrator import LinearCalibrator
 from sfmnet.models.contracts import FitMode, Learner
 from sfmnet.training.learner_module import LearnerModule, OptimizerFactory
+
+log = logging.getLogger(__name__)
 
 
 def fit(
@@ -37,8 +40,8 @@ def fit(
     if ckpt_path is not None and not Path(ckpt_path).is_file():
         raise SfmnetError(f"ckpt_path {ckpt_path} is not a file: give a run's checkpoints/<method>/last.ckpt")
     if ckpt_path is not None and passes:
-        print(f"resuming from {ckpt_path}: a fit in passes over a file keeps the passes it finished and reads the one "
-              "it was in again from its start")
+        log.info(f"resuming from {ckpt_path}: a fit in passes over a file keeps the passes it finished and reads the one "
+                 "it was in again from its start")
     if passes:
         # The row data module deals its blocks to processes itself; a distributed sampler would split them again.
         trainer_options["use_distributed_sampler"] = False

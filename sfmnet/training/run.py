@@ -35,10 +35,12 @@ from sfmnet.tasks.pca import PcaTask
 from sfmnet.tasks.sensorimotor import SensorimotorTask
 from sfmnet.training.components import build_callbacks, build_logger
 from sfmnet.training.fitting import fit
+from sfmnet.training.tensorboard_summary import log_final_figures, log_settings, run_settings
 
 RESULT_FILES = ("metrics.json", "calibration.json", "learner.npz", "pca.npz")
 TASKS: dict[str, type[Task]] = {task.kind: task for task in (CalibrationTask, SensorimotorTask, PcaTask)}
 Metrics = dict[str, float]
+log = logging.getLogger(__name__)
 
 
 def quiet_lightning() -> None:
@@ -114,11 +116,13 @@ def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | No
     task = build_task(cfg, datamodule)
     data = datamodule.data
     results: dict[str, MethodResult] = {}
+    fits: dict[str, FittedMethod] = {}
     for position, (name, model) in enumerate(task.models().items()):
         # Resuming (ckpt_path) applies to the main method; baselines refit, as deterministically.
         ckpt_path = cfg.get("ckpt_path") if position == 0 else None
-        fitted = fit_method(name, model, cfg, datamodule, run_dir, task, ckpt_path)
-        results[name] = task.evaluate(fitted, data)
+        settings = run_settings(cfg, name, cfg.model if position == 0 else cfg.baselines[name])
+        fits[name] = fit_method(name, model, cfg, datamodule, run_dir, task, ckpt_path, settings)
+        results[name] = task.evaluate(fits[name], data)
     task.after_fits(data, results, run_dir)
     main = next(iter(results.values()))
     if rank_zero_only.rank != 0:
@@ -126,13 +130,25 @@ def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | No
         return main.metrics
     metrics = task.write(results, data, run_dir)
     write_json_atomic(run_dir / "metrics.json", metrics)
-    print(f"\nrun directory: {run_dir}")
+    for name, fitted in fits.items():
+        log_final_figures(fitted.logger, fitted.settings, method_metrics(metrics, name, list(results)),
+                          results[name].series, fitted.trainer.global_step)
+    log.info(f"run directory: {run_dir}")
     for line in task.summary(results, data):
-        print(line)
+        log.info(line)
     if cfg.get("report"):
-        print(instantiate(cfg.report)({n: r.metrics for n, r in results.items()}, data, run_dir))
-    print(f"inspect: tensorboard --logdir {run_dir}")
+        log.info(instantiate(cfg.report)({n: r.metrics for n, r in results.items()}, data, run_dir))
+    log.info(f"inspect: tensorboard --logdir {run_dir}")
     return metrics
+
+
+def method_metrics(metrics: Metrics, name: str, methods: list[str]) -> Metrics:
+    """``name``'s figures among the run's ``metrics`` (``metrics.json``: the main method's, the first of ``methods``,
+    unprefixed; each baseline's under ``<name>/``)."""
+    main, *baselines = methods
+    if name != main:
+        return {key.removeprefix(f"{name}/"): value for key, value in metrics.items() if key.startswith(f"{name}/")}
+    return {key: value for key, value in metrics.items() if key.partition("/")[0] not in baselines}
 
 
 def fit_method(
@@ -143,9 +159,11 @@ def fit_method(
     run_dir: Path,
     task: Task,
     ckpt_path: str | None,
+    settings: dict[str, object],
 ) -> FittedMethod:
-    """Fit one model through a Trainer from ``cfg.trainer``, with the run's logger and callbacks."""
+    """Fit one model through a Trainer from ``cfg.trainer``, with the run's logger (given ``settings``) and callbacks."""
     logger = build_logger(cfg, run_dir, name)
+    log_settings(logger, settings)
     callbacks = build_callbacks(cfg, run_dir, name, model)
     started = time.perf_counter()
     trainer = fit(
@@ -153,4 +171,4 @@ def fit_method(
         logger=logger if logger is not None else False, callbacks=callbacks, default_root_dir=str(run_dir),
         enable_checkpointing=any(isinstance(callback, ModelCheckpoint) for callback in callbacks),
     )
-    return FittedMethod(name, model, trainer, time.perf_counter() - started, logger, run_dir)
+    return FittedMethod(name, model, trainer, time.perf_counter() - started, logger, run_dir, settings)
