@@ -470,6 +470,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "no threads": (simulated("threads=0"), r"threads is 0: give a whole number >= 1"),
     "negative weight decay": (simulated("experiment=mkv_autoencoder", "model.weight_decay=-1"), r"model.weight_decay is -1: give a number >= 0"),
     "a robot run of no steps": (simulated("experiment=mkv_pca", "data.steps=0"), r"data.steps is 0: give a whole number >= 2"),
+    "leave-one-group-out without groups": (
+        simulated("eval.leave_one_group_out=true", "trainer.max_epochs=1"),
+        r"eval.leave_one_group_out holds out one group \(pose\) at a time, and this data has none",
+    ),
     "a setting no one reads": (simulated("+data.sample=5"), r"data.sample is not a setting of data \(.*FingertipDataModule\): did you mean data.samples\?"),
     "marginal grid too coarse for the sphere": (
         simulated("experiment=lord3dof", "model.refinement=marginal", "model.marginal_grid=200"),

@@ -13,6 +13,7 @@ from omegaconf import DictConfig
 
 from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData
+from sfmnet.errors import SfmnetError
 from sfmnet.eval.figures import OUTSIDE_RIGHT
 from sfmnet.eval.held_out import load_errors
 from sfmnet.io import write_csv_atomic
@@ -32,13 +33,17 @@ def known_load_groups(data: CalibrationData, recording: str) -> list[int]:
     """Groups of ``recording`` holding a known load: they fix the frame, so they are in every fit and never held out."""
     rec = data.recordings[recording]
     if rec.groups is None:
-        raise ValueError(f"recording {recording} has no groups")
+        raise SfmnetError(
+            "eval.leave_one_group_out holds out one group (pose) at a time, and this data has none: give the poses "
+            "(data.group_column=..., or a continuous recording's static intervals) or drop eval.leave_one_group_out"
+        )
     return sorted(set(rec.groups[rec.known].tolist()))
 
 
 def held_out_groups(data: CalibrationData, recording: str) -> list[int]:
     """Groups of ``recording`` with no known load: holding out a known pose would change the method, not test it."""
-    return sorted(set(data.recordings[recording].groups.tolist()) - set(known_load_groups(data, recording)))
+    known = known_load_groups(data, recording)
+    return sorted(set(data.recordings[recording].groups.tolist()) - set(known))
 
 
 def leave_one_group_out(
