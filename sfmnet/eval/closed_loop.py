@@ -59,11 +59,19 @@ class ClosedLoopSettings:
 
 
 def learner_policy(model: SensorimotorLearner, commands: list[Command]) -> Policy:
-    """The learnt mapping as a policy: each period the commands read from the latest sensors alone."""
+    """The learnt mapping as a policy: each period the commands read from the latest sensors alone.
+
+    The reading (:meth:`SensorimotorLearner.read_commands`) is a least-squares projection, affine in
+    the sensors, so it is taken once as ``vector = offset + sensors @ slope`` (exact to rounding)
+    rather than solved anew every period.
+    """
     labels = [np.array(command.labels) for command in commands]
+    probes = torch.cat([torch.zeros(1, model.sensor_count), torch.eye(model.sensor_count)]).to(model.column_mean.dtype)
+    vectors = model.read_commands(probes).reconstruction
+    offset, slope = vectors[0], vectors[1:] - vectors[0]
 
     def policy(sensors: np.ndarray) -> np.ndarray:
-        indices = model.read_commands(torch.from_numpy(sensors)).commands
+        indices = model.decode(offset + torch.from_numpy(sensors) @ slope)
         return np.stack([labels[i][indices[:, i]] for i in range(len(labels))], axis=1)
 
     return policy

@@ -16,6 +16,9 @@ from sfmnet.eval.closed_loop import in_contact, onsets
 from sfmnet.simulators.mkv_robot import Room, Run
 
 COLUMNS = 3
+# Panel size and the margins around panels, inches (fixed: a layout engine costs a second a figure).
+PANEL = (3.8, 3.0)
+TOP, BOTTOM, LEFT, RIGHT, BETWEEN_ROWS, BETWEEN_COLUMNS = 1.2, 0.9, 0.6, 0.2, 1.25, 0.6
 
 
 def trajectory_figure(room: Room, runs: dict[str, list[Run]], captions: dict[str, str], title: str) -> Figure:
@@ -29,7 +32,13 @@ def trajectory_figure(room: Room, runs: dict[str, list[Run]], captions: dict[str
     """
     rows = math.ceil(len(runs) / COLUMNS)
     columns = min(COLUMNS, len(runs))
-    fig, axes = plt.subplots(rows, columns, figsize=(4.4 * columns, 3.9 * rows + 1.0), squeeze=False, layout="constrained")
+    width = LEFT + RIGHT + columns * PANEL[0] + (columns - 1) * BETWEEN_COLUMNS
+    height = TOP + BOTTOM + rows * PANEL[1] + (rows - 1) * BETWEEN_ROWS
+    fig, axes = plt.subplots(rows, columns, figsize=(width, height), squeeze=False)
+    fig.subplots_adjust(
+        left=LEFT / width, right=1 - RIGHT / width, bottom=BOTTOM / height, top=1 - TOP / height,
+        wspace=BETWEEN_COLUMNS / PANEL[0], hspace=BETWEEN_ROWS / PANEL[1],
+    )
     colours = plt.get_cmap("tab10").colors
     for ax, (policy, policy_runs) in zip(axes.flat, runs.items()):
         ax.add_patch(Rectangle((0, 0), room.width, room.depth, fill=False, edgecolor="black", linewidth=1.2))
@@ -59,6 +68,6 @@ def trajectory_figure(room: Room, runs: dict[str, list[Run]], captions: dict[str
         Line2D([], [], marker="x", color="red", linestyle="", label="bump (switch closes)"),
         Line2D([], [], marker="o", color="0.75", markeredgecolor="0.4", linestyle="", markersize=9, label="obstacle"),
     ]
-    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=8, frameon=False)
+    fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.0), ncol=len(handles), fontsize=8, frameon=False)
     fig.suptitle(title)
     return fig

@@ -188,15 +188,15 @@ def rest_reading(state: RobotState) -> np.ndarray:
 
 
 def advance(
-    room: Room, state: RobotState, drive: int, steer: int, robot: RobotParameters, noise: np.ndarray
-) -> tuple[RobotState, np.ndarray, float]:
+    room: Room, state: RobotState, drive: int, steer: int, robot: RobotParameters, noise: list[float]
+) -> tuple[RobotState, list[float], float]:
     """One period ``robot.dt`` under the command ``(drive, steer)``, each in {-1, 0, 1}.
 
     Args:
         noise: ``6`` standard normal draws for the sensor noise.
 
     Returns:
-        The new state; the sensors read at the end of the period (``8``, see :data:`SENSORS`), so
+        The new state; the sensors read at the end of the period (``8`` values, see :data:`SENSORS`), so
         they show what the command is doing; and how far the drive wheel rolled (m, signed, 0 when
         the robot was blocked).
     """
@@ -221,18 +221,16 @@ def advance(
     else:
         drive_current = 0.0
     steer_current = (robot.steer_stall_current if at_stop else robot.steer_run_current) if steer else 0.0
-    sensors = np.array(
-        [
-            round(step * robot.ticks_per_metre + robot.encoder_noise * noise[0]),
-            robot.steer_resolution_deg * round(math.degrees(delta) / robot.steer_resolution_deg),
-            math.cos(heading) + robot.compass_noise * noise[1],
-            math.sin(heading) + robot.compass_noise * noise[2],
-            float(bump_front),
-            float(bump_rear),
-            abs(drive_current + robot.current_noise * noise[3]),
-            abs(steer_current + robot.current_noise * noise[4]),
-        ]
-    )
+    sensors = [
+        round(step * robot.ticks_per_metre + robot.encoder_noise * noise[0]),
+        robot.steer_resolution_deg * round(math.degrees(delta) / robot.steer_resolution_deg),
+        math.cos(heading) + robot.compass_noise * noise[1],
+        math.sin(heading) + robot.compass_noise * noise[2],
+        float(bump_front),
+        float(bump_rear),
+        abs(drive_current + robot.current_noise * noise[3]),
+        abs(steer_current + robot.current_noise * noise[4]),
+    ]
     return RobotState(x, y, heading, delta, speed), sensors, step
 
 
@@ -278,9 +276,9 @@ def run_policy(
     rolled = np.empty((len(rooms), steps))
     for t in range(steps):
         commands[:, t] = policy(latest)
-        for i, room in enumerate(rooms):
-            drive, steer = (int(c) for c in commands[i, t])
-            states[i], sensors[i, t], rolled[i, t] = advance(room, states[i], drive, steer, robot, generator.normal(size=6))
+        noise = generator.normal(size=(len(rooms), 6)).tolist()
+        for i, (room, (drive, steer)) in enumerate(zip(rooms, commands[:, t].tolist())):
+            states[i], sensors[i, t], rolled[i, t] = advance(room, states[i], int(drive), int(steer), robot, noise[i])
             poses[i, t] = states[i].x, states[i].y, states[i].heading
         latest = sensors[:, t]
     return [Run(sensors[i], commands[i], poses[i], rolled[i], room) for i, room in enumerate(rooms)]
@@ -294,8 +292,10 @@ class TeleoperatorPolicy:
         self.bumps = [SENSORS.index("bump_front"), SENSORS.index("bump_rear")]
 
     def __call__(self, sensors: np.ndarray) -> np.ndarray:
-        switches = sensors[:, self.bumps] > 0
-        return np.array([operator.command(*map(bool, closed)) for operator, closed in zip(self.operators, switches)])
+        front, rear = self.bumps
+        return np.array(
+            [operator.command(row[front] > 0, row[rear] > 0) for operator, row in zip(self.operators, sensors.tolist())]
+        )
 
 
 def simulate_episode(
