@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import lightning as L
 import numpy as np
@@ -17,6 +18,9 @@ from torch.utils.data import DataLoader, TensorDataset
 
 from sfmnet.data.batches import batch_loader
 from sfmnet.errors import SfmnetError
+
+if TYPE_CHECKING:
+    from sfmnet.simulators.mkv_robot import MkvWorld
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,8 @@ class SensorimotorData:
         sensors: the ``p_s`` sensor names.
         commands: the command channels with their alphabets.
         period: seconds per sample (for plots).
+        world: the simulator the test runs came from, for driving a learnt mapping in closed
+            loop; None for a recorded log.
     """
 
     train: list[Episode]
@@ -57,6 +63,7 @@ class SensorimotorData:
     sensors: list[str]
     commands: list[Command]
     period: float = 1.0
+    world: MkvWorld | None = None
 
     @property
     def recordings(self) -> dict[str, SensorimotorData]:

@@ -146,16 +146,20 @@ class SensorimotorLearner(nn.Module, ABC):
         reconstruction = masked_projection(basis, standardised, observed) @ basis
         sensor_error = (reconstruction - standardised)[:, observed].pow(2).mean(dim=1).sqrt()
         raw = (reconstruction + self.centre()) * self.column_scale + self.column_mean
-        # Decode in raw units, where each one-hot block estimates the labels' indicators.
+        return CommandReading(
+            commands=self.decode(raw),
+            confidence=(1 / (1 + sensor_error)).numpy(),
+            reconstruction=raw,
+        )
+
+    def decode(self, raw: torch.Tensor) -> np.ndarray:
+        """``f x c`` label indices from full vectors in raw units (``f x m``): each command's one-hot block by its
+        largest entry (in raw units, where each block estimates the labels' indicators)."""
         commands, start = [], self.sensor_count
         for size in self.command_sizes:
             commands.append(raw[:, start : start + size].argmax(dim=1))
             start += size
-        return CommandReading(
-            commands=torch.stack(commands, dim=1).numpy(),
-            confidence=(1 / (1 + sensor_error)).numpy(),
-            reconstruction=raw,
-        )
+        return torch.stack(commands, dim=1).numpy()
 
     @torch.no_grad()
     def reconstruction_error(self, vectors: torch.Tensor) -> float:

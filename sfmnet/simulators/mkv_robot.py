@@ -13,6 +13,7 @@ Every draw comes from a ``numpy.random.Generator``, so a seed fixes rooms and ep
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -165,6 +166,138 @@ class Teleoperator:
         self.remaining = float(self.rng.uniform(*duration))
 
 
+@dataclass(frozen=True)
+class RobotState:
+    """Where the robot is and what its motors are doing.
+
+    Attributes:
+        x, y: position, m. heading: rad. delta: steering angle, rad. speed: drive speed, m/s (signed).
+    """
+
+    x: float
+    y: float
+    heading: float
+    delta: float = 0.0
+    speed: float = 0.0
+
+
+def rest_reading(state: RobotState) -> np.ndarray:
+    """The sensors (``8``, see :data:`SENSORS`) of a robot standing still with its motors off, noise-free:
+    what a policy reads before the first command."""
+    return np.array([0.0, math.degrees(state.delta), math.cos(state.heading), math.sin(state.heading), 0, 0, 0, 0])
+
+
+def advance(
+    room: Room, state: RobotState, drive: int, steer: int, robot: RobotParameters, noise: list[float]
+) -> tuple[RobotState, list[float], float]:
+    """One period ``robot.dt`` under the command ``(drive, steer)``, each in {-1, 0, 1}.
+
+    Args:
+        noise: ``6`` standard normal draws for the sensor noise.
+
+    Returns:
+        The new state; the sensors read at the end of the period (``8`` values, see :data:`SENSORS`), so
+        they show what the command is doing; and how far the drive wheel rolled (m, signed, 0 when
+        the robot was blocked).
+    """
+    # Steering motor: integrates the command up to the stops.
+    max_delta = math.radians(robot.max_steer_deg)
+    wanted = state.delta + steer * math.radians(robot.steer_rate_deg) * robot.dt
+    at_stop = steer != 0 and abs(wanted) > max_delta
+    delta = max(-max_delta, min(max_delta, wanted))
+    # Drive motor: first-order lag towards the commanded speed.
+    speed = state.speed + (drive * robot.max_speed - state.speed) * robot.dt / robot.drive_time_constant
+    step = speed * robot.dt
+    heading = state.heading + step * math.tan(delta) / robot.wheelbase
+    x, y = state.x + step * math.cos(heading), state.y + step * math.sin(heading)
+    blocked = room.collides(x, y, robot.radius)
+    # The switch on the side the robot was moving towards closes; the wheel stops.
+    bump_front, bump_rear = blocked and step > 0, blocked and step < 0
+    if blocked:
+        speed, step = 0.0, 0.0
+        x, y, heading = state.x, state.y, state.heading
+    if drive != 0:
+        drive_current = robot.free_current + (robot.stall_current - robot.free_current) * (1 - abs(speed) / robot.max_speed)
+    else:
+        drive_current = 0.0
+    steer_current = (robot.steer_stall_current if at_stop else robot.steer_run_current) if steer else 0.0
+    sensors = [
+        round(step * robot.ticks_per_metre + robot.encoder_noise * noise[0]),
+        robot.steer_resolution_deg * round(math.degrees(delta) / robot.steer_resolution_deg),
+        math.cos(heading) + robot.compass_noise * noise[1],
+        math.sin(heading) + robot.compass_noise * noise[2],
+        float(bump_front),
+        float(bump_rear),
+        abs(drive_current + robot.current_noise * noise[3]),
+        abs(steer_current + robot.current_noise * noise[4]),
+    ]
+    return RobotState(x, y, heading, delta, speed), sensors, step
+
+
+# Reads every robot's latest sensors (``b x 8``, see :data:`SENSORS`) and gives their commands
+# (``b x 2``: drive, steer in {-1, 0, 1}).
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Run:
+    """One robot's run, a row per period.
+
+    Attributes:
+        sensors: ``t x 8`` (see :data:`SENSORS`), read at the end of each period.
+        commands: ``t x 2``, drive and steer applied during each period, in {-1, 0, 1}.
+        poses: ``t x 3``, x and y (m) and heading (rad) at the end of each period.
+        rolled: ``t``, how far the drive wheel rolled in each period (m, signed, noise-free).
+        room: where it ran.
+    """
+
+    sensors: np.ndarray
+    commands: np.ndarray
+    poses: np.ndarray
+    rolled: np.ndarray
+    room: Room
+
+
+def run_policy(
+    rooms: list[Room], policy: Policy, steps: int, robot: RobotParameters, generator: np.random.Generator
+) -> list[Run]:
+    """One robot in each of ``rooms``, from the room's centre with a random heading, all driven by ``policy``
+    in lockstep for ``steps`` periods: each period the policy reads every robot's latest sensors (before
+    the first, the noise-free reading at rest) and its commands are applied for one period.
+
+    ``generator`` draws the headings, then each period every robot's sensor noise (after the policy,
+    which may draw from it too: the teleoperator does).
+    """
+    states = [RobotState(room.width / 2, room.depth / 2, generator.uniform(-math.pi, math.pi)) for room in rooms]
+    latest = np.stack([rest_reading(state) for state in states])
+    sensors = np.empty((len(rooms), steps, len(SENSORS)))
+    commands = np.empty((len(rooms), steps, len(COMMANDS)))
+    poses = np.empty((len(rooms), steps, 3))
+    rolled = np.empty((len(rooms), steps))
+    for t in range(steps):
+        commands[:, t] = policy(latest)
+        noise = generator.normal(size=(len(rooms), 6)).tolist()
+        for i, (room, (drive, steer)) in enumerate(zip(rooms, commands[:, t].tolist())):
+            states[i], sensors[i, t], rolled[i, t] = advance(room, states[i], int(drive), int(steer), robot, noise[i])
+            poses[i, t] = states[i].x, states[i].y, states[i].heading
+        latest = sensors[:, t]
+    return [Run(sensors[i], commands[i], poses[i], rolled[i], room) for i, room in enumerate(rooms)]
+
+
+class TeleoperatorPolicy:
+    """One :class:`Teleoperator` per robot, each reading its robot's bump switches."""
+
+    def __init__(self, robots: int, parameters: OperatorParameters, dt: float, generator: np.random.Generator) -> None:
+        self.operators = [Teleoperator(parameters, dt, generator) for _ in range(robots)]
+        self.bumps = [SENSORS.index("bump_front"), SENSORS.index("bump_rear")]
+
+    def __call__(self, sensors: np.ndarray) -> np.ndarray:
+        front, rear = self.bumps
+        return np.array(
+            [operator.command(row[front] > 0, row[rear] > 0) for operator, row in zip(self.operators, sensors.tolist())]
+        )
+
+
 def simulate_episode(
     room: Room,
     steps: int,
@@ -179,51 +312,17 @@ def simulate_episode(
         drive, steer in {-1, 0, 1}); the sensors of step ``t`` are read after applying the
         command of step ``t`` for one period, so they show what that command is doing.
     """
-    x, y = room.width / 2, room.depth / 2
-    heading = generator.uniform(-math.pi, math.pi)
-    delta = speed = 0.0
-    bump_front = bump_rear = False
-    teleoperator = Teleoperator(operator, robot.dt, generator)
-    max_delta = math.radians(robot.max_steer_deg)
-    sensors = np.empty((steps, len(SENSORS)))
-    commands = np.empty((steps, len(COMMANDS)))
-    for t in range(steps):
-        drive, steer = teleoperator.command(bump_front, bump_rear)
-        # Steering motor: integrates the command up to the stops.
-        wanted = delta + steer * math.radians(robot.steer_rate_deg) * robot.dt
-        at_stop = steer != 0 and abs(wanted) > max_delta
-        delta = max(-max_delta, min(max_delta, wanted))
-        # Drive motor: first-order lag towards the commanded speed.
-        speed += (drive * robot.max_speed - speed) * robot.dt / robot.drive_time_constant
-        step = speed * robot.dt
-        new_heading = heading + step * math.tan(delta) / robot.wheelbase
-        new_x, new_y = x + step * math.cos(new_heading), y + step * math.sin(new_heading)
-        blocked = room.collides(new_x, new_y, robot.radius)
-        bump_front, bump_rear = blocked and step > 0, blocked and step < 0
-        if blocked:
-            speed, step = 0.0, 0.0
-        else:
-            x, y, heading = new_x, new_y, new_heading
-        if drive != 0:
-            drive_current = robot.free_current + (robot.stall_current - robot.free_current) * (
-                1 - abs(speed) / robot.max_speed
-            )
-        else:
-            drive_current = 0.0
-        steer_current = (robot.steer_stall_current if at_stop else robot.steer_run_current) if steer else 0.0
-        noise = generator.normal(size=6)
-        sensors[t] = [
-            round(step * robot.ticks_per_metre + robot.encoder_noise * noise[0]),
-            robot.steer_resolution_deg * round(math.degrees(delta) / robot.steer_resolution_deg),
-            math.cos(heading) + robot.compass_noise * noise[1],
-            math.sin(heading) + robot.compass_noise * noise[2],
-            float(bump_front),
-            float(bump_rear),
-            abs(drive_current + robot.current_noise * noise[3]),
-            abs(steer_current + robot.current_noise * noise[4]),
-        ]
-        commands[t] = [drive, steer]
-    return sensors, commands
+    (run,) = run_policy([room], TeleoperatorPolicy(1, operator, robot.dt, generator), steps, robot, generator)
+    return run.sensors, run.commands
+
+
+@dataclass(frozen=True)
+class MkvWorld:
+    """What closed-loop evaluation needs of the simulator: the test rooms, the robot and the teleoperator."""
+
+    test_rooms: list[Room]
+    robot: RobotParameters
+    operator: OperatorParameters
 
 
 class MkvDataModule(SensorimotorDataModule):
@@ -268,20 +367,25 @@ class MkvDataModule(SensorimotorDataModule):
     def build(self) -> SensorimotorData:
         commands = [Command(name, [-1, 0, 1]) for name in COMMANDS]
         train_stream, test_stream = np.random.default_rng(self.seed).spawn(2)
+        train, _ = self.episodes(self.train_rooms, train_stream)
+        test, test_rooms = self.episodes(self.test_rooms, test_stream)
         return SensorimotorData(
-            train=self.episodes(self.train_rooms, train_stream),
-            test=self.episodes(self.test_rooms, test_stream),
+            train=train,
+            test=test,
             sensors=list(SENSORS),
             commands=commands,
             period=self.robot.dt,
+            world=MkvWorld(test_rooms, self.robot, self.operator),
         )
 
-    def episodes(self, rooms: int, generator: np.random.Generator) -> list[Episode]:
-        runs = []
+    def episodes(self, rooms: int, generator: np.random.Generator) -> tuple[list[Episode], list[Room]]:
+        """``episodes_per_room`` teleoperated runs in each of ``rooms`` new rooms; and the rooms."""
+        runs, made = [], []
         for _ in range(rooms):
             room = random_room(generator, self.room_size, self.obstacles, self.obstacle_radius)
+            made.append(room)
             for _ in range(self.episodes_per_room):
                 sensors, commands = simulate_episode(room, self.steps, self.robot, self.operator, generator)
                 codes = np.stack([label_indices(column, [-1, 0, 1]) for column in commands.T], axis=1)
                 runs.append(Episode(sensors, codes))
-        return runs
+        return runs, made

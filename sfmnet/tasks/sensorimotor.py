@@ -7,6 +7,7 @@ Run directory::
     predictions.csv              the main learner's commands and confidence on every held-out sample
     figures/<name>_commands.png  the paper's Fig. 6 on the first held-out run
     figures/<name>_spectrum.png  singular values of the training vectors, the chosen rank marked
+    figures/closed_loop_room<i>.png  simulated data: where each policy drove in test room i (closed loop)
     tensorboard/<name>/          losses per epoch (and the autoencoder's subspace angle), the same figures
     checkpoints/<name>/last.ckpt
 """
@@ -17,8 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from hydra.utils import instantiate
+from lightning.pytorch.utilities import rank_zero_only
+from lightning.pytorch.loggers import Logger
+from omegaconf import DictConfig, OmegaConf
 
 from sfmnet.data.sensorimotor import SensorimotorData
+from sfmnet.eval.closed_loop import ClosedLoopResult, ClosedLoopSettings, closed_loop
 from sfmnet.eval.command_metrics import command_metrics
 from sfmnet.eval.figures import commands_figure, method_title, spectrum_figure
 from sfmnet.io import save_npz_atomic, write_csv_atomic
@@ -26,7 +32,8 @@ from sfmnet.linalg.factorisation import truncated_svd_factors
 from sfmnet.linalg.subspace import principal_angles_deg
 from sfmnet.models.sensorimotor_learner import CommandReading, SensorimotorLearner
 from sfmnet.tasks.base import FittedMethod, MethodResult, Task
-from sfmnet.training.components import publish_figure
+from sfmnet.eval.trajectory_figure import trajectory_figure
+from sfmnet.training.components import build_logger, publish_figure
 
 
 class SensorimotorTask(Task):
@@ -34,6 +41,10 @@ class SensorimotorTask(Task):
 
     kind = "sensorimotor"
     ignores = {"eval.leave_one_group_out": "holds out whole runs already (data.test_runs or the data's split)"}
+
+    def __init__(self, cfg: DictConfig) -> None:
+        super().__init__(cfg)
+        self.closed_loop: ClosedLoopResult | None = None
 
     def evaluate(self, fitted: FittedMethod, data: SensorimotorData) -> MethodResult:
         model: SensorimotorLearner = fitted.model
@@ -63,6 +74,17 @@ class SensorimotorTask(Task):
             draw_figures(fitted, data, readings[0])
         return MethodResult(fitted.name, metrics, result=readings, model=model)
 
+    def after_fits(self, data: SensorimotorData, results: dict[str, MethodResult], run_dir: Path) -> None:
+        """Simulated data with ``eval.closed_loop``: each learner's mapping, the teleoperator and a random policy
+        drive the robot in the test rooms (sfmnet.eval.closed_loop); a figure per room."""
+        settings = OmegaConf.select(self.cfg, "eval.closed_loop")
+        if data.world is None or settings is None:
+            return
+        learners = {name: result.model for name, result in results.items()}
+        self.closed_loop = closed_loop(data.world, learners, data.commands, instantiate(settings))
+        if rank_zero_only.rank == 0:
+            draw_closed_loop(self.closed_loop, data, run_dir, build_logger(self.cfg, run_dir, "closed_loop"))
+
     def write(self, results: dict[str, MethodResult], data: SensorimotorData, run_dir: Path) -> dict[str, float]:
         main, *baselines = results.values()
         save_learner(main.model, data, run_dir / "learner.npz")
@@ -71,10 +93,15 @@ class SensorimotorTask(Task):
         for result in baselines:
             save_learner(result.model, data, run_dir / "baselines" / result.name / "learner.npz")
             metrics.update({f"{result.name}/{key}": value for key, value in result.metrics.items()})
+        if self.closed_loop is not None:
+            metrics.update(self.closed_loop.flat_metrics())
         return metrics
 
     def summary(self, results: dict[str, MethodResult], data: SensorimotorData) -> list[str]:
-        return [headline(name, result.metrics, data) for name, result in results.items()]
+        lines = [headline(name, result.metrics, data) for name, result in results.items()]
+        if self.closed_loop is not None:
+            lines += closed_loop_lines(self.closed_loop, data)
+        return lines
 
 
 def draw_figures(fitted: FittedMethod, data: SensorimotorData, reading: CommandReading) -> None:
@@ -98,6 +125,39 @@ def draw_figures(fitted: FittedMethod, data: SensorimotorData, reading: CommandR
     for tag, figure in figures.items():
         png = fitted.run_dir / "figures" / f"{name}_{tag}.png"
         publish_figure(figure, png, f"{name}/{tag}", fitted.logger, fitted.trainer.global_step)
+
+
+def closed_loop_caption(figures: dict[str, float], settings: ClosedLoopSettings) -> str:
+    """E.g. ``wheel turning 97.6 % of the time, 76 of 76 bumps/stalls escaped within 10 s, 7.8 bumps/min``."""
+    escaped = round(figures["escape_rate"] * figures["incidents"]) if figures["incidents"] else 0
+    return (
+        f"wheel turning {100 * figures['moving_fraction']:.1f} % of the time, {escaped} of {int(figures['incidents'])} "
+        f"bumps/stalls escaped within {settings.escape_seconds:g} s, {figures['bumps_per_minute']:.1f} bumps/min"
+    )
+
+
+def closed_loop_lines(result: ClosedLoopResult, data: SensorimotorData) -> list[str]:
+    settings = result.settings
+    lines = [
+        f"  closed loop, commands read from the robot's own sensors every {data.period:g} s "
+        f"({len(data.world.test_rooms)} test rooms x {settings.runs_per_room} runs of {settings.seconds:g} s):"
+    ]
+    lines += [f"    {policy}: {closed_loop_caption(figures, settings)}" for policy, figures in result.metrics.items()]
+    return lines
+
+
+def draw_closed_loop(result: ClosedLoopResult, data: SensorimotorData, run_dir: Path, logger: Logger | None) -> None:
+    """``figures/closed_loop_room<i>.png``: every policy's paths in test room ``i`` (1-based)."""
+    settings = result.settings
+    captions = {policy: closed_loop_caption(figures, settings).replace(", ", "\n", 1) for policy, figures in result.metrics.items()}
+    for number, (room, runs) in enumerate(result.rooms(data.world), start=1):
+        title = (
+            f"Closed loop in test room {number} of {len(data.world.test_rooms)}: each policy drives the robot from its "
+            f"own sensors, {settings.runs_per_room} runs of {settings.seconds:g} s\n(the figures under each name are over "
+            "every test room)"
+        )
+        figure = trajectory_figure(room, runs, captions, title)
+        publish_figure(figure, run_dir / "figures" / f"closed_loop_room{number}.png", f"closed_loop/room{number}", logger)
 
 
 def save_learner(model: SensorimotorLearner, data: SensorimotorData, path: Path) -> None:
