@@ -16,6 +16,8 @@ HEADLINE_METRICS = (
     "test/magnitude_rms", "matrix_error_relative", "matrix_std_relative", "coverage", "rank_gap", "goodness/outliers",
     # sensorimotor learning (per command)
     "rank", "*_accuracy", "*_kappa", "*_when_f1", "confidence_auroc", "subspace_angle_deg",
+    # sensorimotor learning, closed loop (per policy)
+    "closed_loop/*/moving_fraction", "closed_loop/*/escape_rate", "closed_loop/*/bumps_per_minute",
     # PCA
     "explained_variance_ratio",
 )
