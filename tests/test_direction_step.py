@@ -60,3 +60,23 @@ def test_a_sensor_with_unequal_gains_calibrates_as_well_as_the_penalised_fit():
         calibration = sfmnet.calibrate(readings, magnitude, loads, axes=3, **{"model.refinement": refinement})
         errors[refinement] = np.linalg.norm(calibration.matrix - truth) / np.linalg.norm(truth)
     assert errors["alternation"] <= 1.1 * errors["penalty"], errors
+
+
+def test_the_alternation_returns_the_loss_at_its_fixed_point():
+    """Its logged loss comes from the last round's directions; at the fixed point that is the loss at the fit."""
+    from hydra.utils import instantiate
+
+    from tests.conftest import compose_config
+
+    cfg = compose_config(["experiment=lord3dof", "model.refinement=alternation"])
+    datamodule = instantiate(cfg.data)
+    datamodule.setup("fit")
+    model = instantiate(cfg.model)
+    recording = datamodule.data.recordings[model.recording]
+    model.initialise(recording)
+    batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
+    logged = model.alternate(batch)
+    final = model.loss(batch)
+    assert set(logged) == set(final)
+    for name, value in final.items():
+        assert abs(float(logged[name]) - float(value)) <= 1e-6 * float(final["loss"]), name

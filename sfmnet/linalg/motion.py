@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-UNIT_MOTION_CHUNK_ROWS = 65_536
+UNIT_MOTION_CHUNK_ROWS = 131_072
 
 
 @torch.no_grad()
@@ -85,7 +85,8 @@ def unit_motion(readings: torch.Tensor, shape: torch.Tensor, iterations: int = 1
         ``b x n``, unit rows.
     """
     eigenvalues, basis = torch.linalg.eigh(shape @ shape.T)
-    # In chunks, so the solve's temporaries stay a few MB however long the recording.
+    # In chunks, so the solve's temporaries stay some tens of MB however long the recording (and large enough
+    # for the thread pool to pay off: 65,536-row chunks were 1.3x slower on 2 threads).
     chunks = readings.split(UNIT_MOTION_CHUNK_ROWS)
     return torch.cat([boundary_directions(chunk @ shape.T @ basis, eigenvalues, basis, iterations) for chunk in chunks])
 

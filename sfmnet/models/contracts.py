@@ -74,10 +74,10 @@ class StepFitted(Learner, Protocol):
 
 @runtime_checkable
 class Alternating(StepFitted, Protocol):
-    """``FitMode.ALTERNATION``: each step is the model's own closed-form rounds; ``loss`` is only logged."""
+    """``FitMode.ALTERNATION``: each step is the model's own closed-form rounds; the loss is only logged."""
 
-    def alternate(self, batch: Any) -> None:
-        """Refine the parameters in place from one (full) batch."""
+    def alternate(self, batch: Any) -> dict[str, torch.Tensor]:
+        """Refine the parameters in place from one (full) batch; return the loss terms there (as :meth:`loss`'s)."""
 
 
 @runtime_checkable

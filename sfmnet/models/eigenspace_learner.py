@@ -41,8 +41,9 @@ class EigenspaceLearner(SensorimotorLearner):
         index, vectors = batch
         return index, self.standardise(vectors), self.unknown_coefficients(vectors)
 
-    def alternate(self, batch: tuple[torch.Tensor, torch.Tensor]) -> None:
-        self.factorisation.alternate(self.factorisation_batch(batch))
+    def alternate(self, batch: tuple[torch.Tensor, torch.Tensor]) -> dict[str, torch.Tensor]:
+        terms = self.factorisation.alternate(self.factorisation_batch(batch))
+        return {"reconstruction": terms["reconstruction"], "loss": terms["loss"]}
 
     def loss(self, batch: tuple[torch.Tensor, torch.Tensor]) -> dict[str, torch.Tensor]:
         terms = self.factorisation.loss(self.factorisation_batch(batch))

@@ -426,7 +426,12 @@ class ShapeFromMotion(LinearCalibrator):
     def loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         if self.refinement == "marginal":
             return self.marginal_loss(batch)
-        readings, motion, directions, unknown = self.batch_motion(batch)
+        return self.loss_terms(*self.batch_motion(batch))
+
+    def loss_terms(
+        self, readings: torch.Tensor, motion: torch.Tensor, directions: torch.Tensor, unknown: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """The loss terms at the current ``(S, o)`` for rows' motion already solved (:meth:`scaled_motion`'s four)."""
         terms = {
             "reconstruction": reconstruction_loss(readings, motion, self.shape, self.offset, unknown),
             "metric_constraint": metric_constraint_loss(directions, unknown) if self.constrained else readings.new_zeros(()),
@@ -436,7 +441,7 @@ class ShapeFromMotion(LinearCalibrator):
         return terms
 
     @torch.no_grad()
-    def alternation_map(self, batch: ScaledBatch) -> torch.Tensor:
+    def alternation_map(self, motion_state: tuple[torch.Tensor, ...]) -> torch.Tensor:
         """One round of method §5's alternation from the current ``(S, o)``; returns the new ``[S; o]`` (``(n+1) x p``).
 
         ``u_j <- the unit direction nearest z_j - o`` (:func:`unit_motion`), then ``[S; o] <- lstsq([M 1], Z)``
@@ -445,8 +450,11 @@ class ShapeFromMotion(LinearCalibrator):
         plain rounds would turn it by tiny steps). The least
         squares is solved about the rows' (weighted) means, which keeps the offset column from
         making it ill-conditioned, through ``n x n`` normal equations: a few passes over the rows.
+
+        Args:
+            motion_state: :meth:`scaled_motion` of the batch at the current ``(S, o)`` (the first step).
         """
-        readings, motion, _, unknown = self.scaled_motion(batch)
+        readings, motion, _, unknown = motion_state
         weights = None
         if self.robust:
             residual = (readings - motion @ self.shape - self.offset).norm(dim=1)
@@ -468,18 +476,24 @@ class ShapeFromMotion(LinearCalibrator):
         return torch.cat([shape, offset[None]])
 
     @torch.no_grad()
-    def alternate(self, batch: Batch) -> None:
+    def alternate(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Up to ``alternation_steps`` rounds of :meth:`alternation_map` on a full batch, Anderson-accelerated,
-        until a round moves ``[S; o]`` by less than ``ALTERNATION_TOLERANCE`` of its norm."""
+        until a round moves ``[S; o]`` by less than ``ALTERNATION_TOLERANCE`` of its norm.
+
+        Returns the loss terms at the final ``(S, o)`` with the last round's directions: at the fixed
+        point those are the final ones to that tolerance, and a million rows' direction solve is saved.
+        """
         scaled = self.scaled_batch(batch)
         acceleration = AndersonAcceleration()
         current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
         for _ in range(self.alternation_steps):
-            current = acceleration.step(current, self.alternation_map(scaled))
+            motion_state = self.scaled_motion(scaled)
+            current = acceleration.step(current, self.alternation_map(motion_state))
             self.shape.copy_(current[: self.rank])
             self.offset.copy_(current[self.rank])
             if acceleration.step_norm <= ALTERNATION_TOLERANCE * float(current.norm()):
                 break
+        return self.loss_terms(*motion_state)
 
     def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
         """The unknown-load rows' directions, put exactly on the unit sphere, and their maps (load units)."""

@@ -78,9 +78,7 @@ class LearnerModule(L.LightningModule):
             self.model.accumulate(rows)
             return None
         if self.mode is FitMode.ALTERNATION:
-            self.model.alternate(rows)
-            with torch.no_grad():
-                terms = self.model.loss(rows)
+            terms = self.model.alternate(rows)
         else:
             terms = self.model.loss(rows)
         size = len(rows[0])
