@@ -232,3 +232,16 @@ def test_run_dir_that_is_a_file_is_refused(tmp_path: Path):
         with pytest.raises(sfmnet.SfmnetError, match="is a file"):
             sfmnet.calibrate(table[:, 1:7], magnitude=9.81, loads=table[:, 7:10], run_dir=run_dir)
     assert (tmp_path / "file").read_text() == "mine"
+
+
+def test_every_load_known_calibrates(tmp_path: Path):
+    """No row of unknown orientation: nothing to draw of the recovered motion, and the fit is least squares' (the
+    motion figure once failed on its empty array)."""
+    rng = np.random.default_rng(0)
+    shape = rng.normal(size=(3, 6))
+    directions = rng.normal(size=(300, 3))
+    loads = 9.81 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    readings = loads @ shape + 0.01 * rng.normal(size=(300, 6))
+    calibration = sfmnet.calibrate(readings, 9.81, loads, run_dir=tmp_path / "run")
+    np.testing.assert_allclose(calibration.matrix, np.linalg.pinv(shape).T, atol=2e-3)
+    assert not (tmp_path / "run" / "figures" / "shape_from_motion_motion.png").exists()

@@ -61,7 +61,8 @@ def calibration_diagnostics(
                 "the orientations leave part of the load space unvisited; turn the mass through more of it"
             )
     residuals = model.fitted_residuals(recording, loads)
-    residual = residuals.pow(2).mean(dim=0).sqrt()
+    # Norms, not squares: no second f x p array (a million-row recording's is 48 MB).
+    residual = torch.linalg.vector_norm(residuals, dim=0) / math.sqrt(len(residuals))
     metrics.update({f"residual_rms/{name}": float(value) for name, value in zip(channels, residual)})
     metrics.update(load_residuals(residuals, matrix))
     # An unconstrained row's load is free in all n dimensions; a constrained one has d - 1 free.
@@ -99,9 +100,10 @@ def load_residuals(residuals: torch.Tensor, matrix: torch.Tensor) -> dict[str, f
         ``load_residual/force_rms`` and, with more than three axes, ``load_residual/torque_rms`` (load units).
     """
     loads = residuals @ matrix.T
-    metrics = {"load_residual/force_rms": float(loads[:, :3].pow(2).sum(dim=1).mean().sqrt())}
+    rms = lambda part: float(torch.linalg.vector_norm(part) / math.sqrt(len(part)))  # noqa: E731
+    metrics = {"load_residual/force_rms": rms(loads[:, :3])}
     if loads.shape[1] > 3:
-        metrics["load_residual/torque_rms"] = float(loads[:, 3:].pow(2).sum(dim=1).mean().sqrt())
+        metrics["load_residual/torque_rms"] = rms(loads[:, 3:])
     return metrics
 
 
@@ -124,7 +126,8 @@ def constraint_terms(model: LinearCalibrator, recording: CalibrationRecording) -
     p, n = recording.readings.shape[1], recording.rank
     if p <= n or recording.direction_maps is not None or not model.constrained or int(unknown.sum()) <= n:
         return None
-    readings = recording.readings[unknown]
-    loads = model.motion_of(readings)
-    off_space = readings - model.physical_offset() - loads @ model.physical_shape()
+    # One f x p array, made in place: a million rows' is 48 MB.
+    off_space = recording.readings[unknown] - model.physical_offset()
+    loads = off_space @ model.calibration_matrix().T
+    off_space.addmm_(loads, model.physical_shape(), alpha=-1)
     return loads, off_space, recording.magnitude

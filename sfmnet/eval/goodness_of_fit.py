@@ -111,7 +111,7 @@ def constraint_noise_ratio(loads: torch.Tensor, off_space: torch.Tensor, matrix:
     dof = (f - n) * (p - n)
     if dof <= 0:
         return math.nan
-    noise = math.sqrt(float(off_space.pow(2).sum()) / dof)
+    noise = float(torch.linalg.vector_norm(off_space)) / math.sqrt(dof)
     directions = loads / loads.norm(dim=1, keepdim=True)
     spread = noise * (directions @ matrix).norm(dim=1)
     return float(((loads.norm(dim=1) - magnitude) / spread).pow(2).mean().sqrt())
@@ -137,7 +137,7 @@ def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Ten
     Returns:
         The boolean ``f`` mask of outliers and the robust noise (raw units).
     """
-    squares = residuals.pow(2).sum(dim=1)
+    squares = torch.linalg.vector_norm(residuals, dim=1).square()
     free = dof > 0
     if not bool(free.any()):
         return torch.zeros_like(free), math.nan
@@ -262,7 +262,7 @@ def goodness_of_fit(
             "(motion, bumps, a slipped mass, a misapplied known load, a nonlinear sensor): remove them (outlier_rows "
             "in calibration.json), fit only the static intervals (a time column), or set model.robust=huber"
         )
-    worst = residuals.pow(2).sum(dim=1)[outliers].argsort(descending=True)
+    worst = torch.linalg.vector_norm(residuals[outliers], dim=1).argsort(descending=True)
     outlier_rows = torch.nonzero(outliers)[:, 0][worst].tolist()
     if len(known_loads):
         rms, ratio = known_load_misfit(

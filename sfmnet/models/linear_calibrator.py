@@ -177,7 +177,7 @@ class LinearCalibrator(nn.Module, ABC):
             directions,
             maps,
             self.estimate_offset,
-            residual_sum_of_squares=float(residual.pow(2).sum()),
+            residual_sum_of_squares=float(torch.linalg.vector_norm(residual)) ** 2,
             observations=residual.numel(),
         )
 

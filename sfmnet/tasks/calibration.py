@@ -159,9 +159,10 @@ def draw_figures(fitted: FittedMethod, recording: CalibrationRecording, unit: st
             model.singular_values, recording.rank, f"{words}: singular values of the readings", "raw reading units"
         )
     }
-    if model.constrained:
+    unknown = ~recording.known
+    # Every row's load known: there is no recovered motion to draw.
+    if model.constrained and bool(unknown.any()):
         # The calibrated readings, not the constraint-pulled motion: they show the noise.
-        unknown = ~recording.known
         if recording.direction_maps is None:
             motion = model.motion_of(recording.readings[unknown])
             title = f"{words}: calibrated loads of the samples of unknown orientation"
