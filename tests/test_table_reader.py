@@ -106,7 +106,7 @@ def test_bom_and_semicolon_files_calibrate_and_apply_as_the_plain_csv(tmp_path: 
     apply_calibration(tmp_path / "plain" / "calibration.json", plain, tmp_path / "plain_loads.csv", overwrite=False)
     for name in ("BOM", "semicolons and decimal commas"):
         written = tmp_path / f"{name}.csv"
-        VARIANTS[name](plain_rows(plain), written)
+        VARIANTS[name][0](plain_rows(plain), written)
         calibration = calibration_of(written, tmp_path / name)
         assert calibration["channels"] == expected["channels"]
         for key in ("matrix", "offset", "warnings"):
