@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO
+from sfmnet.errors import SfmnetError
+from sfmnet.training.run import train
+from tests.conftest import REPO, compose_config
 
 QUIET = ["trainer.enable_progress_bar=false"]
 
@@ -59,15 +61,27 @@ def test_command_word_is_optional(tmp_path: Path):
         (["experiment=lord3dof", "data.mirror_hint=false"], "fix the 3-axis frame only up to a mirror image"),
         (["model.rank=3"], "model.rank is 3 but the data has 2 load axes"),
         (["model=least_squares"], "learns from a 'least_squares' recording, which this data does not have"),
+    ],
+    ids=["collinear", "coplanar", "too-few-samples", "no-mirror-bit", "wrong-rank", "no-known-loads"],
+)
+def test_data_the_method_cannot_use_is_refused(tmp_path: Path, overrides: list[str], message: str):
+    """In process (the command line's one line and exit 2 for such an error: the tests below)."""
+    with pytest.raises(SfmnetError) as caught:
+        train(compose_config([*overrides, "trainer.enable_progress_bar=false"]), tmp_path / "run")
+    assert message in str(caught.value)
+    assert not (tmp_path / "run" / "calibration.json").exists()
+
+
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
         (["experiment=fingertp"], "unknown experiment 'fingertp' (did you mean 'fingertip'?): choose one of"),
         (["data.nosie_fraction=0.1"], "unknown config key 'data.nosie_fraction' (did you mean 'data.noise_fraction'?)"),
         (["experiment=calibrate_csv"], "data.path must be given, e.g. data.path=<value>"),
         (["experiment=calibrate_csv", "data.path=/no/such/file.csv", "data.magnitude=1"], "/no/such/file.csv does not exist"),
+        (["data.motion_span=1"], "the loads are collinear or coplanar"),
     ],
-    ids=[
-        "collinear", "coplanar", "too-few-samples", "no-mirror-bit", "wrong-rank", "no-known-loads",
-        "unknown-experiment", "misspelt-key", "missing-path", "no-such-file",
-    ],
+    ids=["unknown-experiment", "misspelt-key", "missing-path", "no-such-file", "collinear"],
 )
 def test_bad_input_one_line_exit_2(tmp_path: Path, overrides: list[str], message: str):
     result = sfmnet("train", f"hydra.run.dir={tmp_path / 'run'}", *overrides, *QUIET)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from sfmnet.errors import SfmnetError
-from sfmnet.training.run_directory import LOCK_NAME, claim_run_dir, release_run_dir
+from sfmnet.training.run_directory import LOCK_NAME, claim_run_dir, discard_refused_run, release_run_dir
 from tests.conftest import REPO
 
 FAST = ["trainer.enable_progress_bar=false", "trainer.max_epochs=1", "~logger"]
@@ -54,13 +54,14 @@ def test_an_earlier_run_is_never_rewritten(earlier_run: Path, spelling: str):
 
 
 def test_a_sweep_run_again_into_its_directory_is_refused(tmp_path: Path):
+    """An earlier sweep's record (its multirun.yaml and a job folder) stands for the sweep: refused before Hydra writes."""
     sweep_dir = tmp_path / "sweep"
-    first = sfmnet("-m", f"hydra.sweep.dir={sweep_dir}", "seed=0,1")
-    assert first.returncode == 0, first.stderr[-2000:]
+    (sweep_dir / "0").mkdir(parents=True)
+    (sweep_dir / "multirun.yaml").write_text("hydra: {}\n")
     before = snapshot(sweep_dir)
     again = sfmnet("-m", f"hydra.sweep.dir={sweep_dir}", "seed=0,1")
     assert again.returncode == 2
-    assert "error: hydra.sweep.dir" in again.stderr and "already holds files" in again.stderr
+    assert "error: hydra.sweep.dir" in again.stderr and "already holds files (0, multirun.yaml)" in again.stderr
     assert snapshot(sweep_dir) == before
 
 
@@ -89,11 +90,13 @@ def test_the_lock_is_exclusive(tmp_path: Path):
 def test_a_refused_run_gives_its_directory_back(tmp_path: Path):
     """Refused before any result: the scaffold (.hydra, train.log, lock) goes, so the corrected command can use the
     directory; a folder the user made stays, empty."""
-    missing = f"data.path={tmp_path / 'missing.csv'}"
+    refused = sfmnet("experiment=calibrate_csv", f"data.path={tmp_path / 'missing.csv'}", f"hydra.run.dir={tmp_path / 'new'}")
+    assert refused.returncode == 2 and "does not exist" in refused.stderr
+    assert not (tmp_path / "new").exists()
     made_by_user = tmp_path / "mine"
     made_by_user.mkdir()
-    for run_dir in (tmp_path / "new", made_by_user):
-        refused = sfmnet("experiment=calibrate_csv", missing, f"hydra.run.dir={run_dir}")
-        assert refused.returncode == 2 and "does not exist" in refused.stderr
-    assert not (tmp_path / "new").exists()
+    claim_run_dir(made_by_user, "hydra.run.dir")
+    (made_by_user / ".hydra").mkdir()
+    (made_by_user / "train.log").write_text("")
+    discard_refused_run(made_by_user)
     assert made_by_user.is_dir() and not any(made_by_user.iterdir())
