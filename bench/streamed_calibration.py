@@ -18,7 +18,8 @@ memory is its own:
 - ``numpy``: ``bench/numpy_reference.py``, the same algorithm in plain numpy (closed form, plain
   Anderson-accelerated alternation to a 1e-9 step, the matrix's Cramer-Rao error bars; no checks, figures or files).
 
-Seconds are the run start to finish (Python start, reading, fitting, error bars, figures);
+Seconds are the run start to finish (Python start, reading, fitting, error bars, figures), the median of
+``--repeats`` runs of each fit taken in turns; memory is the largest peak of those runs;
 ratios are each fit's speed relative to the streamed one measured in the same run
 (> 1: faster than streamed). "vs in memory" is the relative difference of the streamed and numpy
 matrices from the in-memory one, "error" the streamed matrix's relative error against the simulated truth.
@@ -28,6 +29,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -64,8 +67,25 @@ def write_session(path: Path, rows: int, seed: int = 0) -> np.ndarray:
     return np.linalg.pinv(shape).T
 
 
+def median_run(results: list[dict]) -> dict:
+    """Several runs of one fit (each a fresh process): the median seconds, the largest peak memory, the last matrix.
+
+    Python's start (importing torch and Lightning) alone varies by a second or two between runs
+    on a shared machine, so one run of each fit cannot rank two fits a few percent apart.
+    """
+    done = [result for result in results if "skipped" not in result]
+    if len(done) < len(results):
+        return next(result for result in results if "skipped" in result)
+    return {
+        **done[-1],
+        "seconds": statistics.median(result["seconds"] for result in done),
+        "peak_mb": max(result["peak_mb"] for result in done),
+    }
+
+
 def calibrate(path: Path, run_dir: Path, timeout: float, *overrides: str) -> dict:
     """One run of the CLI under /usr/bin/time; its seconds, peak memory, passes and matrix."""
+    shutil.rmtree(run_dir, ignore_errors=True)
     command = [
         "/usr/bin/time", "-f", "%M", sys.executable, "-m", "sfmnet", "train", f"data.path={path}",
         f"data.columns=[{','.join(COLUMNS)}]", f"data.magnitude={MAGNITUDE}", f"hydra.run.dir={run_dir}",
@@ -109,6 +129,7 @@ def main() -> None:
     parser.add_argument("--rows", type=float, nargs="+", default=[1e5, 1e6])
     parser.add_argument("--timeout", type=float, default=600.0)
     parser.add_argument("--in-memory-up-to", type=float, default=1e6, help="skip the in-memory fit above this many rows")
+    parser.add_argument("--repeats", type=int, default=5, help="runs of each fit, their median seconds reported")
     args = parser.parse_args()
     print("| orientations | file | streamed | streamed x2 | in memory [speed vs streamed] | numpy [speed vs streamed] | vs in memory (streamed, numpy) | error vs truth |")
     print("|---|---|---|---|---|---|---|---|")
@@ -117,14 +138,22 @@ def main() -> None:
             path = Path(folder) / f"session_{rows}.npy"
             truth = write_session(path, rows)
             stream_args = ("experiment=calibrate_stream",)
-            streamed = calibrate(path, Path(folder) / f"s{rows}", args.timeout, *stream_args)
-            double = calibrate(path, Path(folder) / f"d{rows}", args.timeout, *stream_args, "trainer.devices=2", "trainer.strategy=ddp")
-            memory = (
-                calibrate(path, Path(folder) / f"m{rows}", args.timeout, "experiment=calibrate_csv",
-                          "model.refinement=alternation", "trainer.max_epochs=1")
-                if rows <= args.in_memory_up_to else {"skipped": "not run"}
-            )
-            reference = numpy_reference(path, args.timeout) if rows <= args.in_memory_up_to else {"skipped": "not run"}
+            in_memory = rows <= args.in_memory_up_to
+            # The fits take turns, so a slow spell of the machine falls on each of them alike.
+            runs = {
+                "streamed": lambda: calibrate(path, Path(folder) / f"s{rows}", args.timeout, *stream_args),
+                "double": lambda: calibrate(path, Path(folder) / f"d{rows}", args.timeout, *stream_args,
+                                            "trainer.devices=2", "trainer.strategy=ddp"),
+                "memory": lambda: calibrate(path, Path(folder) / f"m{rows}", args.timeout, "experiment=calibrate_csv",
+                                            "model.refinement=alternation", "trainer.max_epochs=1")
+                if in_memory else {"skipped": "not run"},
+                "reference": lambda: numpy_reference(path, args.timeout) if in_memory else {"skipped": "not run"},
+            }
+            trials = {name: [] for name in runs}
+            for _ in range(args.repeats):
+                for name, run in runs.items():
+                    trials[name].append(run())
+            streamed, double, memory, reference = (median_run(trials[name]) for name in runs)
 
             def cell(result: dict, passes: bool = False) -> str:
                 if "skipped" in result:

@@ -33,6 +33,25 @@ def test_unit_motion_is_the_nearest_point_of_the_sphere():
         assert bool((cost(found) <= cost(normalised) + 1e-12).all())
 
 
+def test_a_warm_start_finds_the_same_directions_and_hands_back_the_roots():
+    shape = anisotropic_shape([10.0, 1.0, 0.1], 6, seed=3)
+    generator = torch.Generator().manual_seed(4)
+    directions = torch.nn.functional.normalize(torch.randn(5000, 3, generator=generator, dtype=torch.float64), dim=1)
+    readings = directions @ shape + 0.3 * torch.randn(5000, 6, generator=generator, dtype=torch.float64)
+    cold = unit_motion(readings, shape)
+    roots = torch.full((5000,), float("nan"), dtype=torch.float64)
+    assert torch.allclose(unit_motion(readings, shape, multipliers=roots), cold, atol=1e-12)
+    # The multipliers handed back are the roots of the boundary equation |(G + s I)^-1 S z| = 1.
+    gram = shape @ shape.T
+    solved = torch.linalg.solve(gram + roots[:, None, None] * torch.eye(3, dtype=torch.float64), readings @ shape.T)
+    assert torch.allclose(solved.norm(dim=1), torch.ones(5000, dtype=torch.float64), atol=1e-10)
+    # The next round's shape has moved; starts from the last roots, far right of them or left of the pole at -g_min
+    # land where a cold start does.
+    moved = shape + 1e-3 * torch.randn(3, 6, generator=generator, dtype=torch.float64)
+    for starts in (roots.clone(), roots + 1e3, roots - 1e3):
+        assert torch.allclose(unit_motion(readings, moved, multipliers=starts), unit_motion(readings, moved), atol=1e-12)
+
+
 def test_known_load_rotation_turns_the_frame_back():
     shape = anisotropic_shape([3.0, 2.0, 1.0], 6, seed=2)
     loads = 9.81 * torch.eye(3, dtype=torch.float64)

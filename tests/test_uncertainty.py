@@ -94,3 +94,21 @@ def test_auto_refinement_keeps_the_alternation_at_good_snr():
     model = ShapeFromMotion()
     model.initialise(datamodule.data.recordings["rotation"])
     assert model.refinement == "alternation" and model.snr > 50
+
+
+def test_a_long_recording_s_information_comes_from_an_even_sample():
+    """Beyond INFORMATION_SAMPLE_ROWS unknown rows, every k-th stands for k: the information agrees with the full sum."""
+    from sfmnet.linalg.uncertainty import INFORMATION_SAMPLE_ROWS, shape_information, unknown_rows_information
+
+    generator = torch.Generator().manual_seed(0)
+    shape = torch.randn(3, 6, generator=generator, dtype=torch.float64)
+    rows = 3 * INFORMATION_SAMPLE_ROWS + 7
+    directions = torch.nn.functional.normalize(torch.randn(rows, 3, generator=generator, dtype=torch.float64), dim=1)
+    maps = 9.81 * torch.eye(3, dtype=torch.float64).expand(rows, 3, 3)
+    known = 9.81 * torch.eye(3, dtype=torch.float64)
+    sampled = shape_information(shape, known, directions, maps, estimate_offset=True)
+    full = sum(
+        unknown_rows_information(shape, directions[start : start + 50_000], maps[start : start + 50_000], True)
+        for start in range(0, rows, 50_000)
+    ) + shape_information(shape, known, directions[:0], maps[:0], estimate_offset=True)
+    assert float((sampled - full).norm() / full.norm()) < 0.01

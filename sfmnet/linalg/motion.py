@@ -60,7 +60,9 @@ def constrained_motion(
 
 
 @torch.no_grad()
-def unit_motion(readings: torch.Tensor, shape: torch.Tensor, iterations: int = 100) -> torch.Tensor:
+def unit_motion(
+    readings: torch.Tensor, shape: torch.Tensor, iterations: int = 100, multipliers: torch.Tensor | None = None
+) -> torch.Tensor:
     """Per row, the global ``argmin_{|u| = 1} |z - u S|^2``: the direction that explains the readings best.
 
     The hard metric constraint (method §5), the limit of :func:`constrained_motion` as ``w``
@@ -80,6 +82,10 @@ def unit_motion(readings: torch.Tensor, shape: torch.Tensor, iterations: int = 1
         readings: ``b x p`` (offsets removed).
         shape: ``n x p``.
         iterations: at most this many Newton steps per row.
+        multipliers: ``b``, optional, read and overwritten: each row's ``s`` to start from (NaN: no
+            start) and, on return, the root found. An alternation passes the previous round's roots:
+            its shape moves little between rounds, so rows need fewer steps (a million rows'
+            solve about 1.4x faster on 2 threads).
 
     Returns:
         ``b x n``, unit rows.
@@ -88,18 +94,30 @@ def unit_motion(readings: torch.Tensor, shape: torch.Tensor, iterations: int = 1
     # In chunks, so the solve's temporaries stay some tens of MB however long the recording (and large enough
     # for the thread pool to pay off: 65,536-row chunks were 1.3x slower on 2 threads).
     chunks = readings.split(UNIT_MOTION_CHUNK_ROWS)
-    return torch.cat([boundary_directions(chunk @ shape.T @ basis, eigenvalues, basis, iterations) for chunk in chunks])
+    starts = [None] * len(chunks) if multipliers is None else multipliers.split(UNIT_MOTION_CHUNK_ROWS)
+    to_eigenbasis = shape.T @ basis
+    return torch.cat(
+        [boundary_directions(chunk @ to_eigenbasis, eigenvalues, basis, iterations, start) for chunk, start in zip(chunks, starts)]
+    )
 
 
 def boundary_directions(
-    coefficients: torch.Tensor, eigenvalues: torch.Tensor, basis: torch.Tensor, iterations: int
+    coefficients: torch.Tensor,
+    eigenvalues: torch.Tensor,
+    basis: torch.Tensor,
+    iterations: int,
+    multipliers: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """:func:`unit_motion`'s Newton solve for rows ``c = z S^T V`` (``b x n``) in the eigenbasis ``V`` of ``S S^T``."""
+    """:func:`unit_motion`'s Newton solve for rows ``c = z S^T V`` (``b x n``) in the eigenbasis ``V`` of ``S S^T``;
+    ``multipliers`` (``b``) as there: starts (NaN: none), overwritten with the roots."""
     # |u(s)| >= |c| / (g_max + s) and >= |c_min| / (g_min + s): left of the root, so a floor for every step.
     low = torch.maximum(coefficients.norm(dim=1) - eigenvalues[-1], coefficients[:, 0].abs() - eigenvalues[0])
-    # Noise-free readings have their root at s = 0; a step from its right lands left of the root.
+    # Noise-free readings have their root at s = 0; a step from its right lands left of the root (concavity), as
+    # does one from a warm start right of it, and every step is floored: from there Newton climbs to the root.
     s = low.clamp(min=0.0)
-    # The rows still stepping, compacted as they converge (most take three or four steps); the
+    if multipliers is not None:
+        s = torch.where(torch.isnan(multipliers), s, multipliers)
+    # The rows still stepping, compacted as they converge (most take two to four steps); the
     # squares are stored n x b, where sums over the n axes are whole-vector adds.
     rows, squares, s_rows, low_rows = torch.arange(len(s), device=s.device), coefficients.T.pow(2), s.clone(), low
     for _ in range(iterations):
@@ -108,12 +126,15 @@ def boundary_directions(
         norm2 = terms.sum(dim=0)
         step = (norm2.sqrt() - 1) * norm2 / terms.mul_(inverse).sum(dim=0)
         s_rows = torch.maximum(s_rows + step, low_rows)
-        # A step moves u by about step / (g_min + s); Newton is quadratic once that is small.
-        going = step.abs() > 1e-13 * (s_rows + eigenvalues[0])
+        # A step moves u by about step / (g_min + s), and Newton is quadratic: after a relative step below
+        # 1e-7 the error left is of order 1e-14 (measured: at most 1.2e-13 in u on a 100:1:0.01-gain sensor).
+        going = step.abs() > 1e-7 * (s_rows + eigenvalues[0])
         s[rows[~going]] = s_rows[~going]
         rows, squares, s_rows, low_rows = rows[going], squares[:, going], s_rows[going], low_rows[going]
         if len(rows) == 0:
             break
     s[rows] = s_rows
+    if multipliers is not None:
+        multipliers.copy_(s)
     directions = (coefficients / (eigenvalues + s[:, None])) @ basis.T
     return directions / directions.norm(dim=1, keepdim=True)

@@ -381,13 +381,18 @@ class ShapeFromMotion(LinearCalibrator):
             directions[rows] = constrained_motion(readings[rows], effective_shape, metric_weight)
         return directions
 
-    def row_directions(self, readings: torch.Tensor, configuration: torch.Tensor) -> torch.Tensor:
-        """Unknown rows' directions as the refinement uses them: on the unit sphere (alternation) or the penalty's argmin."""
+    def row_directions(
+        self, readings: torch.Tensor, configuration: torch.Tensor, multipliers: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Unknown rows' directions as the refinement uses them: on the unit sphere (alternation) or the penalty's argmin.
+
+        ``multipliers``: :func:`unit_motion`'s warm start of one mass's rows (read and overwritten), else unused.
+        """
         if self.refinement == "penalty":
             return self.directions(readings, configuration, self.metric_weight)
         readings = readings - self.offset.detach()
         if len(self.direction_maps) == 1:
-            return unit_motion(readings, self.direction_maps[0] @ self.shape.detach())
+            return unit_motion(readings, self.direction_maps[0] @ self.shape.detach(), multipliers=multipliers)
         directions = readings.new_zeros(len(readings), self.direction_maps.shape[1])
         for c in configuration.unique().tolist():
             rows = configuration == c
@@ -404,18 +409,24 @@ class ShapeFromMotion(LinearCalibrator):
         configuration = self.row_configuration[index] if self.constrained else index
         return ScaledBatch(readings / self.reading_scale, loads / self.load_scale, torch.isnan(loads).any(dim=1), configuration)
 
-    def scaled_motion(self, batch: ScaledBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """:meth:`batch_motion` of a batch already scaled."""
+    def scaled_motion(
+        self, batch: ScaledBatch, multipliers: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`batch_motion` of a batch already scaled; ``multipliers`` (one per row) as in :meth:`row_directions`."""
         readings, loads, unknown, configuration = batch
+        if self.constrained and len(self.direction_maps) == 1:
+            # One mass: every row's direction at once (a known row's is discarded), no masked copies of a long
+            # recording; the few known rows are overwritten in place.
+            known = ~unknown
+            directions = self.row_directions(readings, configuration, multipliers)
+            directions[known] = 0.0
+            motion = directions @ self.direction_maps[0]
+            motion[known] = loads[known]
+            return readings, motion, directions, unknown
         motion = loads.clone()
         if not self.constrained:
             motion[unknown] = constrained_motion(readings[unknown] - self.offset.detach(), self.shape.detach(), 0.0)
             return readings, motion, readings.new_zeros(len(readings), self.rank), unknown
-        if len(self.direction_maps) == 1:
-            # One mass: every row's direction at once (a known row's is discarded), no masked copies of a long recording.
-            directions = self.row_directions(readings, configuration) * unknown[:, None]
-            motion = torch.where(unknown[:, None], directions @ self.direction_maps[0], loads)
-            return readings, motion, directions, unknown
         directions = readings.new_zeros(len(readings), self.direction_maps.shape[1])
         directions[unknown] = self.row_directions(readings[unknown], configuration[unknown])
         for c in configuration[unknown].unique().tolist():
@@ -486,8 +497,10 @@ class ShapeFromMotion(LinearCalibrator):
         scaled = self.scaled_batch(batch)
         acceleration = AndersonAcceleration()
         current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
+        # Each row's multiplier from the last round starts the next round's direction solve.
+        multipliers = scaled.readings.new_full((len(scaled.readings),), float("nan"))
         for _ in range(self.alternation_steps):
-            motion_state = self.scaled_motion(scaled)
+            motion_state = self.scaled_motion(scaled, multipliers)
             current = acceleration.step(current, self.alternation_map(motion_state))
             self.shape.copy_(current[: self.rank])
             self.offset.copy_(current[self.rank])
@@ -505,7 +518,10 @@ class ShapeFromMotion(LinearCalibrator):
         configuration = recording.row_configuration[unknown]
         # The refinement's own direction estimates, so residuals and error bars describe its fixed point.
         directions = self.row_directions(recording.readings[unknown] / self.reading_scale, configuration)
-        return directions / directions.norm(dim=1, keepdim=True), recording.maps[configuration]
+        maps = recording.maps
+        # One mass: one map seen by every row (a view; a million rows' own copies would be 72 MB).
+        row_maps = maps.expand(len(directions), -1, -1) if len(maps) == 1 else maps[configuration]
+        return directions / directions.norm(dim=1, keepdim=True), row_maps
 
     @torch.no_grad()
     def orient(self, recording: CalibrationRecording) -> None:

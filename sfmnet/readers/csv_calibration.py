@@ -145,7 +145,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             )
             if groups is None and not detection.independent:
                 groups = torch.from_numpy(detection.interval_of_rows())
-        rows = torch.from_numpy(keep)
+        # Every row kept (no motion found, or no detection): views, not a copy of every column.
+        rows = slice(None) if keep.all() else torch.from_numpy(keep)
         groups = None if groups is None else groups[rows]
         if self.configuration_column:
             configuration, maps = self.parse_configurations(table)
