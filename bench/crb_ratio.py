@@ -21,11 +21,23 @@ auto's error bars (fraction of calibration-matrix entries within one reported st
 truth, the frame aligned). Trials run in ``--processes`` processes of one thread each:
 
     python bench/crb_ratio.py --laws --trials 50 --processes 2
+
+``--law-bounds``: the bound above treats each sample's direction as an unknown parameter. When the
+directions are draws from a law the estimator knows, the data say more (a direction confined to a band
+cannot be anywhere); this prints, per law (not ``poses``, whose 12 drawn directions are the law) and
+SNR, the square root of that bound's trace over this one's, averaged over ``--trials`` sessions. The
+known-law bound comes from the marginal model's Fisher information ``E[g g^T]``, ``g`` the score of
+``log sum_k N(z; o + F u_k S, s^2 I)`` over a fine quadrature of the law, by Monte Carlo over draws of
+``z``; with the rotation gauge removed as above. Its quadrature (20,000 points) cannot resolve the
+sphere's posterior at SNR 100, so that column is left out for n = 3:
+
+    python bench/crb_ratio.py --law-bounds --trials 3
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import warnings
 
 import lightning as L
@@ -35,7 +47,8 @@ from omegaconf import OmegaConf
 
 from sfmnet.cli import config_dir
 from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
-from sfmnet.linalg.frame import orthogonal_procrustes
+from sfmnet.simulators.simulation import BAND_HALF_WIDTH_DEG, CONE_HALF_ANGLE_DEG, oriented_directions
+from sfmnet.linalg.frame import orthogonal_procrustes, skew_generators
 from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.fitting import refine_in_process
@@ -92,24 +105,120 @@ LAW_SENSORS = {2: (FingertipDataModule, {"magnitude": 111.4, "samples": 96}), 3:
 OFFSET_SCALE = 0.1
 
 
-def law_trial(args: tuple) -> tuple[float, ...]:
-    """Squared shape errors of the closed form, alternation, marginal and auto, the bound, and auto's coverage counts."""
-    n, law, snr, offsets, seed, optimizer_cfg = args
-    torch.set_num_threads(1)
-    warnings.filterwarnings("ignore")
+def law_session(n: int, law: str, snr: float, offsets: bool, seed: int):
+    """The simulated session of one ``--laws`` trial, set up."""
     module_cls, kwargs = LAW_SENSORS[n]
     datamodule = module_cls(
         noise_fraction=1 / snr, known_loads=0, mirror_hint=False, offset_scale=OFFSET_SCALE if offsets else 0.0,
         orientation_law=law, seed=seed, errors={"angle_error_deg": 0.0}, **kwargs,
     )
     datamodule.setup()
+    return datamodule
+
+
+def per_direction_bound(datamodule, snr: float, offsets: bool) -> tuple[torch.Tensor, float, float]:
+    """The true ``S``, the noise and the trace of the shape's Cramer-Rao bound, each sample's direction a parameter."""
     recording = datamodule.data.recordings["rotation"]
     truth = torch.linalg.pinv(datamodule.data.truth.matrix.T)
     noise_std = (1 / snr) * float(truth.norm(dim=0).mean()) * recording.magnitude
     magnitude = recording.magnitude
+    n = truth.shape[0]
     maps = magnitude * torch.eye(n, dtype=truth.dtype).expand(len(recording.true_loads), -1, -1)
     information = shape_information(truth, recording.true_loads[:0], recording.true_loads / magnitude, maps, estimate_offset=offsets)
     bound = noise_std**2 * float(torch.linalg.pinv(information, hermitian=True, rtol=GAUGE_RTOL).diagonal()[: truth.numel()].sum())
+    return truth, noise_std, bound
+
+
+def law_support(law: str, dims: int, count: int) -> torch.Tensor:
+    """``count x dims`` directions covering an orientation law's support evenly (equal weights): its quadrature."""
+    if dims == 2:
+        centre, half_width = {
+            "uniform": (0.0, math.pi), "hemisphere": (math.pi / 2, math.pi / 2),
+            "band": (0.0, math.radians(BAND_HALF_WIDTH_DEG)), "cone": (math.pi / 2, math.radians(CONE_HALF_ANGLE_DEG)),
+        }[law]
+        angle = centre + half_width * ((torch.arange(count, dtype=torch.float64) + 0.5) / count * 2 - 1)
+        if law == "band":
+            angle = torch.cat([angle[::2], angle[1::2] + math.pi])
+        return torch.stack([angle.cos(), angle.sin()], dim=1)
+    band, cone = math.sin(math.radians(BAND_HALF_WIDTH_DEG)), math.cos(math.radians(CONE_HALF_ANGLE_DEG))
+    low, high = {"uniform": (-1.0, 1.0), "hemisphere": (0.0, 1.0), "band": (-band, band), "cone": (cone, 1.0)}[law]
+    # A Fibonacci lattice on the zone: heights evenly spaced (even area, Archimedes), azimuths by the golden angle.
+    index = torch.arange(count, dtype=torch.float64)
+    z = low + (high - low) * (index + 0.5) / count
+    azimuth = index * math.pi * (3 - math.sqrt(5))
+    radius = (1 - z**2).sqrt()
+    return torch.stack([radius * azimuth.cos(), radius * azimuth.sin(), z], dim=1)
+
+
+def known_law_bound(
+    shape: torch.Tensor, noise_std: float, magnitude: float, law: str, rows: int, offsets: bool, seed: int,
+    draws: int = 2_000, quadrature: int = 20_000,
+) -> float:
+    """Trace of the shape's Cramer-Rao bound when each of ``rows`` directions is drawn from ``law``, the law known.
+
+    Per row the information is ``E[g g^T]`` with ``g`` the score of the marginal density
+    ``p(z) = mean_k N(z; F u_k S + o, s^2 I)`` (``u_k`` :func:`law_support`): ``d/dS = F/s^2 E[u^T (z - F u S - o) | z]``,
+    ``d/do = 1/s^2 E[z - F u S - o | z]``, the posterior over the quadrature; the expectation by Monte Carlo.
+    The rotation of the frame is removed as a gauge (the errors are taken after aligning it).
+    """
+    generator = torch.Generator().manual_seed(seed)
+    n, p = shape.shape
+    support = law_support(law, n, quadrature)
+    means = magnitude * support @ shape
+    # The offset's value does not change the information: drawn at zero.
+    readings = magnitude * oriented_directions(law, draws, n, generator) @ shape
+    readings = readings + noise_std * torch.randn(draws, p, generator=generator, dtype=shape.dtype)
+    scores = []
+    for block in readings.split(250):
+        posterior = torch.softmax((block @ means.T - 0.5 * means.pow(2).sum(dim=1)) / noise_std**2, dim=1)
+        first = posterior @ support
+        second = torch.einsum("jk,ka,kb->jab", posterior, support, support)
+        shape_score = magnitude / noise_std**2 * (first[:, :, None] * block[:, None, :] - magnitude * second @ shape)
+        parts = [shape_score.reshape(len(block), n * p)]
+        if offsets:
+            parts.append((block - magnitude * first @ shape) / noise_std**2)
+        scores.append(torch.cat(parts, dim=1))
+    score = torch.cat(scores)
+    information = rows * score.T @ score / draws
+    gauge = torch.stack([(turn @ shape).flatten() for turn in skew_generators(n, shape.dtype)], dim=1)
+    gauge = torch.cat([gauge, gauge.new_zeros(information.shape[0] - n * p, gauge.shape[1])])
+    basis, _ = torch.linalg.qr(gauge, mode="complete")
+    free = basis[:, gauge.shape[1] :]
+    covariance = free @ torch.linalg.inv(free.T @ information @ free) @ free.T
+    return float(covariance.diagonal()[: n * p].sum())
+
+
+def law_bound_table(trials: int, snrs: list[float]) -> None:
+    """Print the ``--law-bounds`` table: sqrt(known-law bound / per-direction bound), summed over sessions."""
+    print("| n | offsets | law | " + " | ".join(f"SNR {snr:g}" for snr in snrs) + " |")
+    print("|---|---|---|" + "---|" * len(snrs))
+    for n in (2, 3):
+        for offsets in (False, True):
+            for law in LAWS[:-1]:
+                cells = []
+                for snr in snrs:
+                    if n == 3 and snr > 20:
+                        cells.append("-")
+                        continue
+                    known_law, per_direction = 0.0, 0.0
+                    for seed in range(trials):
+                        datamodule = law_session(n, law, snr, offsets, seed)
+                        truth, noise_std, bound = per_direction_bound(datamodule, snr, offsets)
+                        recording = datamodule.data.recordings["rotation"]
+                        per_direction += bound
+                        known_law += known_law_bound(truth, noise_std, recording.magnitude, law, len(recording.readings), offsets, seed)
+                    cells.append(f"{math.sqrt(known_law / per_direction):.2f}")
+                print(f"| {n} | {'yes' if offsets else 'no'} | {law} | " + " | ".join(cells) + " |", flush=True)
+
+
+def law_trial(args: tuple) -> tuple[float, ...]:
+    """Squared shape errors of the closed form, alternation, marginal and auto, the bound, and auto's coverage counts."""
+    n, law, snr, offsets, seed, optimizer_cfg = args
+    torch.set_num_threads(1)
+    warnings.filterwarnings("ignore")
+    datamodule = law_session(n, law, snr, offsets, seed)
+    recording = datamodule.data.recordings["rotation"]
+    truth, noise_std, bound = per_direction_bound(datamodule, snr, offsets)
     fitted = {}
     for refinement in ("alternation", "marginal"):
         model = ShapeFromMotion(estimate_offset=offsets, refinement=refinement)
@@ -153,6 +262,7 @@ def main() -> None:
     parser.add_argument("--refinements", nargs="+", default=list(REFINEMENTS), choices=REFINEMENTS)
     parser.add_argument("--laws", action="store_true", help="the orientation-law table (see above)")
     parser.add_argument("--processes", type=int, default=1, help="trial processes for --laws (one thread each)")
+    parser.add_argument("--law-bounds", action="store_true", help="the known-law bound against the per-direction one (see above)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     import logging
@@ -162,6 +272,9 @@ def main() -> None:
     optimizer_cfg = OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml")
     if args.laws:
         law_table(args.trials, args.snr, args.processes, optimizer_cfg)
+        return
+    if args.law_bounds:
+        law_bound_table(args.trials, args.snr)
         return
     print("| sensor | SNR | closed form / CRB | " + " | ".join(f"{r} / CRB" for r in args.refinements) + " |")
     print("|---|---|" + "---|" * (len(args.refinements) + 1))
