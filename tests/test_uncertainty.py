@@ -112,3 +112,21 @@ def test_a_long_recording_s_information_comes_from_an_even_sample():
         for start in range(0, rows, 50_000)
     ) + shape_information(shape, known, directions[:0], maps[:0], estimate_offset=True)
     assert float((sampled - full).norm() / full.norm()) < 0.01
+
+
+def test_an_alternation_that_runs_away_says_so():
+    """At SNR 2 on a band of directions the alternation's shape grows without bound (README: 1000x the truth's
+    singular value); the fit says so, where the same alternation on good data says nothing."""
+    from sfmnet.simulators.simulated_sensor import FingertipDataModule
+
+    def notes(noise_fraction: float, law: str) -> list[str]:
+        datamodule = FingertipDataModule(
+            magnitude=111.4, samples=96, known_loads=0, mirror_hint=False, noise_fraction=noise_fraction, seed=4,
+            orientation_law=law, errors={"angle_error_deg": 0.0},
+        )
+        datamodule.setup()
+        model = refined(ShapeFromMotion(estimate_offset=False, refinement="alternation"), datamodule.data.recordings["rotation"])
+        return model.fit_warnings
+
+    assert any(note.startswith("the alternation ran away") for note in notes(0.5, "band"))
+    assert notes(0.01, "uniform") == []

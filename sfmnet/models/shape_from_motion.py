@@ -48,6 +48,10 @@ MARGINAL_MAX_CELLS = 5e6
 # Relative change of [S; o] in one alternation round at which the alternation has converged, as
 # in the streamed fit: below ~1e-9 rounds only creep along the frame, which a few known loads hold weakly.
 ALTERNATION_TOLERANCE = 1e-9
+# The alternation's shape this many times the closed form's (largest singular value) has run away: the joint
+# likelihood of the shape and every sample's direction has no maximum at low SNR (README, "Error against the
+# Cramér-Rao bound": at SNR 2 it grew 1000x on a band of directions).
+RUNAWAY_GROWTH = 10.0
 # Smoothed EM steps of the directions' distribution per training step of the marginal refinement.
 PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
@@ -187,6 +191,7 @@ class ShapeFromMotion(LinearCalibrator):
             directions = self.directions(recording.readings / self.reading_scale, recording.row_configuration, 0.0)
             self.coverage = require_coverage(directions.T @ directions, len(directions), 1.0)
         self.orient(recording)
+        self.closed_form_scale = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2))
         if self.refinement in ("auto", "marginal") and self.constrained:
             noise = self.closed_form_noise(recording)
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
@@ -506,6 +511,14 @@ class ShapeFromMotion(LinearCalibrator):
             self.offset.copy_(current[self.rank])
             if acceleration.step_norm <= ALTERNATION_TOLERANCE * float(current.norm()):
                 break
+        growth = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2)) / self.closed_form_scale
+        runaway = "the alternation ran away"
+        if growth > RUNAWAY_GROWTH and not any(note.startswith(runaway) for note in self.notes):
+            self.notes.append(
+                f"{runaway}: the shape's largest singular value grew to {growth:.0f}x the closed form's, so this "
+                "calibration is wrong; at low SNR the likelihood of the shape and every sample's direction has no "
+                "maximum: use model.refinement=marginal (or auto)"
+            )
         return self.loss_terms(*motion_state)
 
     def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
