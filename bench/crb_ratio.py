@@ -47,7 +47,7 @@ from omegaconf import OmegaConf
 
 from sfmnet.cli import config_dir
 from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
-from sfmnet.simulators.simulation import BAND_HALF_WIDTH_DEG, CONE_HALF_ANGLE_DEG, oriented_directions
+from sfmnet.simulators.simulation import circle_arc, oriented_directions, sphere_zone
 from sfmnet.linalg.frame import orthogonal_procrustes, skew_generators
 from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
 from sfmnet.models.shape_from_motion import ShapeFromMotion
@@ -132,16 +132,12 @@ def per_direction_bound(datamodule, snr: float, offsets: bool) -> tuple[torch.Te
 def law_support(law: str, dims: int, count: int) -> torch.Tensor:
     """``count x dims`` directions covering an orientation law's support evenly (equal weights): its quadrature."""
     if dims == 2:
-        centre, half_width = {
-            "uniform": (0.0, math.pi), "hemisphere": (math.pi / 2, math.pi / 2),
-            "band": (0.0, math.radians(BAND_HALF_WIDTH_DEG)), "cone": (math.pi / 2, math.radians(CONE_HALF_ANGLE_DEG)),
-        }[law]
+        centre, half_width = circle_arc(law)
         angle = centre + half_width * ((torch.arange(count, dtype=torch.float64) + 0.5) / count * 2 - 1)
         if law == "band":
             angle = torch.cat([angle[::2], angle[1::2] + math.pi])
         return torch.stack([angle.cos(), angle.sin()], dim=1)
-    band, cone = math.sin(math.radians(BAND_HALF_WIDTH_DEG)), math.cos(math.radians(CONE_HALF_ANGLE_DEG))
-    low, high = {"uniform": (-1.0, 1.0), "hemisphere": (0.0, 1.0), "band": (-band, band), "cone": (cone, 1.0)}[law]
+    low, high = sphere_zone(law)
     # A Fibonacci lattice on the zone: heights evenly spaced (even area, Archimedes), azimuths by the golden angle.
     index = torch.arange(count, dtype=torch.float64)
     z = low + (high - low) * (index + 0.5) / count

@@ -165,7 +165,15 @@ class ShapeFromMotion(LinearCalibrator):
 
     @property
     def fit_warnings(self) -> list[str]:
-        return list(self.notes)
+        growth = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2)) / self.closed_form_scale
+        if self.refinement != "alternation" or growth <= RUNAWAY_GROWTH:
+            return list(self.notes)
+        return [
+            *self.notes,
+            f"the alternation ran away: the shape's largest singular value grew to {growth:.0f}x the closed form's, "
+            "so this calibration is wrong; at low SNR the likelihood of the shape and every sample's direction has no "
+            "maximum: use model.refinement=marginal (or auto)",
+        ]
 
     @property
     def constrained(self) -> bool:
@@ -511,14 +519,6 @@ class ShapeFromMotion(LinearCalibrator):
             self.offset.copy_(current[self.rank])
             if acceleration.step_norm <= ALTERNATION_TOLERANCE * float(current.norm()):
                 break
-        growth = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2)) / self.closed_form_scale
-        runaway = "the alternation ran away"
-        if growth > RUNAWAY_GROWTH and not any(note.startswith(runaway) for note in self.notes):
-            self.notes.append(
-                f"{runaway}: the shape's largest singular value grew to {growth:.0f}x the closed form's, so this "
-                "calibration is wrong; at low SNR the likelihood of the shape and every sample's direction has no "
-                "maximum: use model.refinement=marginal (or auto)"
-            )
         return self.loss_terms(*motion_state)
 
     def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:

@@ -99,21 +99,36 @@ def oriented_directions(law: str, count: int, dims: int, generator: torch.Genera
             raise ValueError(f"{count} samples cannot visit {poses} poses")
         return random_directions(poses, dims, generator).repeat_interleave(math.ceil(count / poses), dim=0)[:count]
     uniform = torch.rand(count, generator=generator, dtype=DTYPE)
-    band = math.sin(math.radians(BAND_HALF_WIDTH_DEG))
-    cone = math.cos(math.radians(CONE_HALF_ANGLE_DEG))
     if dims == 3:
-        low, high = {"hemisphere": (0.0, 1.0), "band": (-band, band), "cone": (cone, 1.0)}[law]
+        low, high = sphere_zone(law)
         z = low + (high - low) * uniform
         azimuth = 2 * math.pi * torch.rand(count, generator=generator, dtype=DTYPE)
         radius = (1 - z**2).sqrt()
         return torch.stack([radius * azimuth.cos(), radius * azimuth.sin(), z], dim=1)
-    half_width = {"hemisphere": math.pi / 2, "band": math.radians(BAND_HALF_WIDTH_DEG), "cone": math.radians(CONE_HALF_ANGLE_DEG)}[law]
-    centre = {"hemisphere": math.pi / 2, "band": 0.0, "cone": math.pi / 2}[law]
+    centre, half_width = circle_arc(law)
     angle = centre + half_width * (2 * uniform - 1)
     if law == "band":
         # Either end of the x axis.
         angle = angle + math.pi * (torch.rand(count, generator=generator, dtype=DTYPE) < 0.5)
     return torch.stack([angle.cos(), angle.sin()], dim=1)
+
+
+def sphere_zone(law: str) -> tuple[float, float]:
+    """The interval of the last component ``z`` that an orientation law covers on the sphere (uniformly)."""
+    band = math.sin(math.radians(BAND_HALF_WIDTH_DEG))
+    cone = math.cos(math.radians(CONE_HALF_ANGLE_DEG))
+    return {"uniform": (-1.0, 1.0), "hemisphere": (0.0, 1.0), "band": (-band, band), "cone": (cone, 1.0)}[law]
+
+
+def circle_arc(law: str) -> tuple[float, float]:
+    """Centre and half-width (radians) of the arc of angles an orientation law covers on the circle; the
+    ``"band"`` law covers it and the arc opposite."""
+    return {
+        "uniform": (0.0, math.pi),
+        "hemisphere": (math.pi / 2, math.pi / 2),
+        "band": (0.0, math.radians(BAND_HALF_WIDTH_DEG)),
+        "cone": (math.pi / 2, math.radians(CONE_HALF_ANGLE_DEG)),
+    }[law]
 
 
 def perturb_directions(directions: torch.Tensor, std_rad: float, generator: torch.Generator) -> torch.Tensor:
