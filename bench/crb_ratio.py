@@ -226,7 +226,9 @@ def law_trial(args: tuple) -> tuple[float, ...]:
     auto = fitted[chooser.refinement]
     alignment = orthogonal_procrustes(auto.physical_shape().T, truth.T).T
     bars = auto.uncertainty(recording, auto.fitted_loads(recording)).matrix_std
-    within = ((alignment @ auto.calibration_matrix() - datamodule.data.truth.matrix).abs() < bars).sum()
+    # The bars are in the fit's own frame, so the truth is turned into it (C = pinv(S)^T turns as S does);
+    # turning the fit instead mixes the rows of C, whose bars differ.
+    within = ((auto.calibration_matrix() - alignment.T @ datamodule.data.truth.matrix).abs() < bars).sum()
     errors = [error2(model.physical_shape(), truth, align=True) for model in fitted.values()]
     return closed_form, *errors, errors[list(fitted).index(chooser.refinement)], bound, float(within), float(bars.numel())
 
