@@ -57,6 +57,8 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
     except OSError as error:
         raise write_error(path, error) from None
     try:
+        # mkstemp makes the file private (0600); the output gets the mode any new file would.
+        os.fchmod(handle, 0o666 & ~current_umask())
         with os.fdopen(handle, "wb") as stream:
             stream.write(data)
         os.replace(temporary, path)
@@ -65,6 +67,13 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
         if isinstance(error, OSError):
             raise write_error(path, error) from None
         raise
+
+
+def current_umask() -> int:
+    """The process's file-creation mask (reading it means setting it, so it is set straight back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_text_atomic(path: Path, text: str) -> None:

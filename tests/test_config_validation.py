@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ from sfmnet.calibration import Calibration
 from sfmnet.cli import config_dir
 from sfmnet.config_check import check_overrides
 from sfmnet.config_values import check_config
-from sfmnet.io import check_writable_dir
+from sfmnet.io import check_writable_dir, write_text_atomic
 from sfmnet.readers.table_file import read_table
 from sfmnet.training.run import MAX_THREADS, THREADED_ROWS, thread_count, train
 from tests.conftest import EXPERIMENTS, compose_config, write_session
@@ -97,3 +98,15 @@ def test_auto_threads_follow_the_rows():
     cores = min(len(os.sched_getaffinity(0)), MAX_THREADS)
     assert [thread_count("auto", rows) for rows in (0, THREADED_ROWS - 1, THREADED_ROWS)] == [1, 1, cores]
     assert thread_count(3, 10) == 3
+
+
+def test_written_outputs_get_the_mode_of_any_new_file(tmp_path: Path):
+    # The atomic write goes through a private temporary file; the output must not stay private (0600).
+    previous = os.umask(0o027)
+    try:
+        write_text_atomic(tmp_path / "calibration.json", "{}")
+        (tmp_path / "plain.txt").write_text("{}")
+    finally:
+        os.umask(previous)
+    mode = stat.S_IMODE((tmp_path / "calibration.json").stat().st_mode)
+    assert mode == stat.S_IMODE((tmp_path / "plain.txt").stat().st_mode) == 0o640
