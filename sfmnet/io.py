@@ -52,13 +52,10 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` to a temporary file beside ``path``, then rename it into place; a file-system error is one line."""
     path = Path(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        handle, temporary = temporary_beside(path, ".tmp")
     except OSError as error:
         raise write_error(path, error) from None
     try:
-        # mkstemp makes the file private (0600); the output gets the mode any new file would.
-        os.fchmod(handle, 0o666 & ~current_umask())
         with os.fdopen(handle, "wb") as stream:
             stream.write(data)
         os.replace(temporary, path)
@@ -69,11 +66,19 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-def current_umask() -> int:
-    """The process's file-creation mask (reading it means setting it, so it is set straight back)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+def temporary_beside(path: Path, suffix: str) -> tuple[int, str]:
+    """A new file in ``path``'s folder (made if missing) to be renamed onto ``path``: an open handle and its name.
+
+    ``mkstemp`` makes it private (0600); it gets the mode any new file would (``0666 & ~umask``),
+    so what is renamed into place (outputs, a shared data folder's cache) stays readable to others.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+    # The umask can only be read by setting it, so it is set straight back.
+    umask = os.umask(0o022)
+    os.umask(umask)
+    os.fchmod(handle, 0o666 & ~umask)
+    return handle, temporary
 
 
 def write_text_atomic(path: Path, text: str) -> None:

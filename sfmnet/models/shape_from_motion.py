@@ -165,8 +165,10 @@ class ShapeFromMotion(LinearCalibrator):
 
     @property
     def fit_warnings(self) -> list[str]:
+        if self.refinement != "alternation":
+            return list(self.notes)
         growth = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2)) / self.closed_form_scale
-        if self.refinement != "alternation" or growth <= RUNAWAY_GROWTH:
+        if growth <= RUNAWAY_GROWTH:
             return list(self.notes)
         return [
             *self.notes,

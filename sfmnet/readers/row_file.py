@@ -13,7 +13,6 @@ import hashlib
 import itertools
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import lightning as L
@@ -24,6 +23,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 
 from sfmnet.data.rows import BLOCK_BYTES, SHIFT_ROWS, NpyLayout, RowBlock, RowData, mapped_rows, npy_layout
 from sfmnet.errors import SfmnetError
+from sfmnet.io import temporary_beside
 from sfmnet.readers.delimited import DelimitedFile, decimal_comma_hint, open_delimited
 from sfmnet.readers.input_file import check_input_file
 from sfmnet.readers.table_file import missing_column
@@ -208,8 +208,7 @@ def csv_to_npy(path: Path, cache_dir: Path | None, chunk_rows: int = 100_000) ->
     if rows < 2:
         raise SfmnetError(f"{path} has {rows} data rows: give a CSV with a header and at least two rows")
     try:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(dir=cache.parent, prefix=f".{cache.name}.", suffix=".partial")
+        handle, temporary = temporary_beside(cache, ".partial")
     except OSError as error:
         raise SfmnetError(
             f"the CSV's conversion cannot be written to {cache.parent} ({error.strerror}): set data.cache_dir to a writable folder"
