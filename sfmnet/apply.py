@@ -56,7 +56,7 @@ def apply_calibration(calibration_path: Path, input_path: Path, output_path: Pat
             f"(which needs {', '.join(calibration.channels)}): these readings are not from the calibrated sensor"
         )
     readings = table.numeric(calibration.channels, "channel")
-    check_finite(readings, calibration.channels, input_path, "reading")
+    check_finite(readings, calibration.channels, table, "reading")
     loads = calibration.apply(torch.from_numpy(readings)).numpy()
 
     # The same rows as the table's (the same reader skips the same empty rows).

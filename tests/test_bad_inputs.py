@@ -57,6 +57,16 @@ def blank_last_load(rows: list[list[str]]) -> None:
     rows[-1][9] = ""
 
 
+def blank_lines_after_header(count: int, then):
+    """``then``'s edit, and ``count`` blank lines after the header: every later row's file line moves down by ``count``."""
+
+    def edit(rows: list[list[str]]) -> None:
+        then(rows)
+        rows[1:1] = [[] for _ in range(count)]
+
+    return edit
+
+
 def calibrate_file(tmp_path: Path, text: str | bytes, name: str = "session.csv") -> Action:
     path = tmp_path / name
     path.write_bytes(text if isinstance(text, bytes) else text.encode())
@@ -218,11 +228,12 @@ def calibrate_path(tmp_path: Path, path: Path, experiment: str = "calibrate_csv"
     return lambda: train(cfg, tmp_path / "run")
 
 
-def sensorimotor_empty_command(tmp_path: Path, cell: str, labels: list[str]) -> Action:
-    """A log whose command on line 5 is ``cell`` (the rest cycle through ``labels``)."""
+def sensorimotor_empty_command(tmp_path: Path, cell: str, labels: list[str], blank_lines: int = 0) -> Action:
+    """A log whose command on line 5 is ``cell`` (the rest cycle through ``labels``), ``blank_lines`` after the header."""
     lines = log_text(300).splitlines()
     lines = [lines[0], *(f"{line.rsplit(',', 1)[0]},{labels[i % len(labels)]}" for i, line in enumerate(lines[1:]))]
     lines[4] = f"{lines[4].rsplit(',', 1)[0]},{cell}"
+    lines[1:1] = [""] * blank_lines
     return sensorimotor(tmp_path, "\n".join(lines) + "\n", ["a", "b"], ["cmd"])
 
 
@@ -332,6 +343,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "non-numeric cell": (lambda t: calibrate(t, edit=set_cell(5, 2, "n/a")), r"channel column 's1' of .* is not numeric"),
     "NaN value": (lambda t: calibrate(t, edit=set_cell(7, 3, "nan")), r"1 empty, NaN or infinite reading values \(first: line 7 column s2\)"),
     "infinite value": (lambda t: calibrate(t, edit=set_cell(9, 1, "-inf")), r"1 empty, NaN or infinite reading values \(first: line 9 column s0\)"),
+    "NaN value after blank lines": (
+        lambda t: calibrate(t, edit=blank_lines_after_header(3, set_cell(7, 3, "nan"))),
+        r"1 empty, NaN or infinite reading values \(first: line 10 column s2\)",
+    ),
     "value of 1e30": (lambda t: calibrate(t, edit=set_cell(4, 2, "1e30")), r"1 reading values beyond 1e\+15 \(first: line 4 column s1 \(1e\+30\)\): a corrupt cell or a unit slip"),
     "duplicate column names": (lambda t: calibrate(t, edit=rename_column(2, "s0")), r"duplicate column names: s0; rename them"),
     "channel named twice": (lambda t: calibrate(t, "data.channel_columns=[s0,s0,s1,s2,s3]"), r"column 's0' is named as a channel column twice: give each column one role, once"),
@@ -397,10 +412,18 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "stream: FIFO as data.path": (
         lambda t: calibrate_path(t, fifo(t, "session.csv"), "calibrate_stream"), r"is a FIFO \(named pipe\), not a regular file: data.path needs",
     ),
-    "stream: partly known load": (lambda t: stream(t, edit=blank_last_load), r"data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"),
-    "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"data row 5 \(0-based\) has a NaN, empty or infinite channel cell"),
+    "stream: partly known load": (
+        lambda t: stream(t, edit=blank_last_load), r"session.csv data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"
+    ),
+    "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"line 7 of .*session.csv has a NaN, empty or infinite channel cell"),
+    "stream: NaN value after blank lines": (
+        lambda t: stream(t, edit=blank_lines_after_header(2, set_cell(7, 3, "nan"))),
+        r"line 9 of .*session.csv has a NaN, empty or infinite channel cell",
+    ),
     "stream: missing column": (lambda t: stream(t, "data.load_columns=[fx,fy,fzz]"), r"load column 'fzz' is not in .*session.csv"),
-    "stream: wrong magnitude": (lambda t: stream(t, "data.magnitude=12.0"), r"known load on data row \d+ \(0-based\) of .* has magnitude 9.81 but data.magnitude is 12"),
+    "stream: wrong magnitude": (
+        lambda t: stream(t, "data.magnitude=12.0"), r"known load on data row \d+ \(0-based\) of .*session.csv has magnitude 9.81 but data.magnitude is 12"
+    ),
     "stream: collinear motion": (lambda t: stream(t, edit=project_unknown_loads(1)), r"collinear"),
     "stream: every load known": (lambda t: stream(t, "model.max_known_rows=2"), r"3 rows have known loads \(model.max_known_rows is 2\)"),
     "stream: one pass": (lambda t: stream(t, "trainer.max_epochs=1"), r"needs two passes .* set trainer.max_epochs to 2 or more"),
@@ -438,6 +461,9 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "sensorimotor: fewer rows than columns": (lambda t: sensorimotor(t, log_text(6), ["a", "b"], ["cmd"]), r"only 4 training samples for 5 columns"),
     "sensorimotor: empty text command": (lambda t: sensorimotor_empty_command(t, "", ["go", "stop"]), r"has 1 empty cells in command column 'cmd' \(first: line 5\)"),
     "sensorimotor: empty numeric command": (lambda t: sensorimotor_empty_command(t, "", ["-1", "1"]), r"has 1 empty cells in command column 'cmd' \(first: line 5\)"),
+    "sensorimotor: empty command after a blank line": (
+        lambda t: sensorimotor_empty_command(t, "", ["go", "stop"], blank_lines=1), r"has 1 empty cells in command column 'cmd' \(first: line 6\)"
+    ),
     "rows: stray quote": (lambda t: row_file(t, "rows.csv", 'a,b\n1,2\n"3,4\n'), r"rows.csv line 3: unexpected end of data"),
     "rows: quoted decimal comma": (
         lambda t: row_file(t, "rows.csv", 'a,b\n1,2\n3,"4,5"\n'),

@@ -81,8 +81,15 @@ class RowData:
     shift: torch.Tensor
     load_columns: list[str] = field(default_factory=list)
     load_index: list[int] = field(default_factory=list)
+    # The user's file, for messages: a CSV's rows lie in a converted .npy (``layout.path``).
+    source: Path | None = None
 
     recording = "rows"
+
+    @property
+    def file(self) -> Path:
+        """The file the user gave (the ``.npy`` itself, or the CSV it was converted from)."""
+        return self.source or self.layout.path
 
     @property
     def rows(self) -> int:

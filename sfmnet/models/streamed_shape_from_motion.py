@@ -229,12 +229,12 @@ class StreamedShapeFromMotion(LinearCalibrator):
         moments, data, n = self.moments, self.data, self.rank
         if not bool(torch.isfinite(moments.cross).all()):
             raise SfmnetError(
-                f"{data.layout.path} data row {data.first_non_finite_row()} (0-based) has a NaN, empty or infinite "
+                f"{data.file} data row {data.first_non_finite_row()} (0-based) has a NaN, empty or infinite "
                 "channel cell: repair or drop that row"
             )
         if self.first_partial_row < data.rows:
             raise SfmnetError(
-                f"{data.layout.path} data row {self.first_partial_row} (0-based) gives only some of "
+                f"{data.file} data row {self.first_partial_row} (0-based) gives only some of "
                 f"{', '.join(data.load_columns)}: fill every load column on a known row, or none"
             )
         needed = metric_unknowns(n, self.estimate_offset)
@@ -263,7 +263,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         off = first_magnitude_mismatch(forces.numpy(), magnitudes, self.data.known_load_tolerance)
         if off is not None:
             raise SfmnetError(
-                f"the known load on data row {int(self.known[off, 0])} (0-based) of {self.data.layout.path} has magnitude "
+                f"the known load on data row {int(self.known[off, 0])} (0-based) of {self.data.file} has magnitude "
                 f"{float(forces[off].norm()):.6g} but data.magnitude is {self.data.magnitude:.6g} "
                 f"({100 * self.data.known_load_tolerance:g} % allowed): the known loads must be the calibration mass; "
                 "check the load columns, units and mass"

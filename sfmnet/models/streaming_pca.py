@@ -94,5 +94,5 @@ def require_finite(moments: Moments, data: RowData) -> None:
     if not bool(torch.isfinite(moments.cross).all()):
         row = data.first_non_finite_row()
         raise SfmnetError(
-            f"{data.layout.path} data row {row} (0-based) has a NaN, empty or infinite channel cell: repair or drop that row"
+            f"{data.file} data row {row} (0-based) has a NaN, empty or infinite channel cell: repair or drop that row"
         )

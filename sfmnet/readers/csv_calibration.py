@@ -116,7 +116,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 "least as many channels as axes; list them with data.channel_columns=[...]"
             )
         readings = table.numeric(channels, "channel")
-        check_finite(readings, channels, self.path, "reading")
+        check_finite(readings, channels, table, "reading")
         constant = [name for name, spread in zip(channels, readings.std(axis=0)) if spread == 0]
         if constant:
             raise SfmnetError(
@@ -128,7 +128,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         partial = np.isnan(loads).any(axis=1) & ~np.isnan(loads).all(axis=1)
         if partial.any():
             raise SfmnetError(
-                f"{self.path} line {int(np.argmax(partial)) + 2} gives only some of {', '.join(self.load_columns)}: "
+                f"{self.path} {table.row_place(int(np.argmax(partial)))} gives only some of {', '.join(self.load_columns)}: "
                 "fill every load column on a known row, or none"
             )
         groups = None
@@ -140,7 +140,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             detection = self.static.detect(readings, time)
             known = np.nonzero(~np.isnan(loads).any(axis=1))[0]
             keep = fitted_rows(
-                detection, known, len(self.axes), lambda row: f"line {row + 2} of {self.path}",
+                detection, known, len(self.axes), lambda row: f"{table.row_place(row)} of {self.path}",
                 check_count=not self.configuration_column,
             )
             if groups is None and not detection.independent:
@@ -150,7 +150,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         groups = None if groups is None else groups[rows]
         if self.configuration_column:
             configuration, maps = self.parse_configurations(table)
-            self.check_known_magnitudes(loads[:, :3], (maps[:, 0, 0].numpy())[configuration.numpy()])
+            self.check_known_magnitudes(loads[:, :3], (maps[:, 0, 0].numpy())[configuration.numpy()], table)
             recording = CalibrationRecording(
                 readings=torch.from_numpy(readings)[rows],
                 loads=torch.from_numpy(loads)[rows],
@@ -160,7 +160,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             )
         else:
             magnitude = calibration_magnitude(self.magnitude, self.mass, self.gravity)
-            self.check_known_magnitudes(loads, np.full(len(loads), magnitude))
+            self.check_known_magnitudes(loads, np.full(len(loads), magnitude), table)
             recording = CalibrationRecording(
                 readings=torch.from_numpy(readings)[rows],
                 loads=torch.from_numpy(loads)[rows],
@@ -194,14 +194,14 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         held_out = (recording.groups % 2 == 1) & ~recording.known
         return recording.without(held_out), recording.without(~held_out)
 
-    def check_known_magnitudes(self, forces: np.ndarray, magnitudes: np.ndarray) -> None:
+    def check_known_magnitudes(self, forces: np.ndarray, magnitudes: np.ndarray, table: Table) -> None:
         """Known (force) loads must have their row's mass's magnitude: they are that mass in a known pose."""
         known = np.nonzero(~np.isnan(forces).any(axis=1))[0]
         off = first_magnitude_mismatch(forces[known], magnitudes[known], self.known_load_tolerance)
         if off is not None:
             source = "its configuration's mass gives" if self.configuration_column else "data.magnitude is"
             raise SfmnetError(
-                f"the known load on line {known[off] + 2} of {self.path} has magnitude "
+                f"the known load on {table.row_place(int(known[off]))} of {self.path} has magnitude "
                 f"{np.linalg.norm(forces[known[off]]):.6g} but {source} {magnitudes[known[off]]:.6g} "
                 f"({100 * self.known_load_tolerance:g} % allowed): the known loads must be the calibration mass; "
                 "check the load columns, units and masses"

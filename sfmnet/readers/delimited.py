@@ -85,6 +85,12 @@ class DelimitedFile:
             raise SfmnetError(f"{self.path} has duplicate column names: {', '.join(duplicates)}; rename them")
         return header, records
 
+    def line_of_row(self, row: int) -> int:
+        """The line data row ``row`` (0-based, after the header and skipped rows) starts on; reads the file again."""
+        records = self.records()
+        next(records, None)
+        return next(itertools.islice(records, row, None))[0]
+
     def check_width(self, line: int, cells: list[str], width: int) -> None:
         """Refuse a row whose cell count is not the header's, saying what most likely went wrong."""
         if len(cells) == width:

@@ -121,7 +121,7 @@ class FtPrintedSensorDataModule(CalibrationDataModule):
                 table = read_table(file)
                 readings = table.numeric(CHANNEL_COLUMNS, "channel")
                 wrenches = table.numeric(WRENCH_COLUMNS, "wrench")
-                check_finite(readings, CHANNEL_COLUMNS, file, "reading")
+                check_finite(readings, CHANNEL_COLUMNS, table, "reading")
                 if self.average_poses:
                     readings, wrenches = readings.mean(axis=0, keepdims=True), wrenches.mean(axis=0, keepdims=True)
                 rows.append((readings, wrenches, index, wrenches[0, :3] / np.linalg.norm(wrenches[0, :3])))

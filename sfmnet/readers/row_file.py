@@ -160,8 +160,17 @@ class RowFileDataModule(L.LightningDataModule):
         first = np.asarray(mapped_rows(layout, 0, min(layout.shape[0], SHIFT_ROWS))[:, index], dtype=np.float64)
         if not np.isfinite(first).all():
             row = int(np.argmax(~np.isfinite(first).all(axis=1)))
-            raise SfmnetError(f"{self.path} data row {row} (0-based) has a NaN, empty or infinite channel cell: repair or drop that row")
-        return data_class(layout=layout, channels=list(channels), channel_index=index, shift=torch.from_numpy(first.mean(axis=0)), **extra)
+            raise SfmnetError(f"{self.row_place(row)} has a NaN, empty or infinite channel cell: repair or drop that row")
+        return data_class(
+            layout=layout, channels=list(channels), channel_index=index, shift=torch.from_numpy(first.mean(axis=0)),
+            source=self.path, **extra,
+        )
+
+    def row_place(self, row: int) -> str:
+        """Where data row ``row`` (0-based) of the user's file is: ``line 17 of x.csv`` or ``data row 15 (0-based) of x.npy``."""
+        if self.path.suffix == ".npy":
+            return f"data row {row} (0-based) of {self.path}"
+        return f"line {open_delimited(self.path).line_of_row(row)} of {self.path}"
 
     def train_dataloader(self) -> dict[str, DataLoader]:
         assert self.data is not None, "setup() runs before the loaders"

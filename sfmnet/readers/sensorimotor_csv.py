@@ -14,7 +14,7 @@ from sfmnet.data.sensorimotor import (
     SensorimotorDataModule,
     label_indices,
 )
-from sfmnet.readers.table_file import check_finite, read_table
+from sfmnet.readers.table_file import Table, check_finite, read_table
 from sfmnet.errors import SfmnetError
 
 
@@ -55,10 +55,10 @@ class SensorimotorCsvDataModule(SensorimotorDataModule):
             raise SfmnetError("name the columns: data.sensor_columns=[...] and data.command_columns=[...]")
         table = read_table(self.path, self.columns)
         sensors = table.numeric(self.sensor_columns, "sensor")
-        check_finite(sensors, self.sensor_columns, self.path, "sensor")
+        check_finite(sensors, self.sensor_columns, table, "sensor")
         raw = [table.categorical(name, "command") for name in self.command_columns]
         for name, values in zip(self.command_columns, raw):
-            refuse_empty_commands(values, name, self.path)
+            refuse_empty_commands(values, name, table)
         split = round(len(sensors) * (1 - self.test_fraction))
         commands, indices = [], []
         for name, values in zip(self.command_columns, raw):
@@ -81,13 +81,13 @@ class SensorimotorCsvDataModule(SensorimotorDataModule):
         )
 
 
-def refuse_empty_commands(values: np.ndarray, name: str, path: Path) -> None:
+def refuse_empty_commands(values: np.ndarray, name: str, table: Table) -> None:
     """An empty command cell is no command a learner can produce: refuse it rather than make it a class of its own."""
     empty = np.array([value == "" or (isinstance(value, float) and math.isnan(value)) for value in values])
     if empty.any():
         rows = np.nonzero(empty)[0]
         raise SfmnetError(
-            f"{path} has {len(rows)} empty cells in command column '{name}' (first: line {rows[0] + 2}): "
+            f"{table.path} has {len(rows)} empty cells in command column '{name}' (first: {table.row_place(int(rows[0]))}): "
             "fill in every command or drop those rows"
         )
 

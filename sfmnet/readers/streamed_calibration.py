@@ -117,7 +117,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         """Detect the static intervals chunk by chunk and set ``recording.keep`` (unless the rows are independent poses)."""
         bad = recording.first_non_finite_row()
         if bad is not None:
-            raise SfmnetError(f"{self.path} data row {bad} (0-based) has a NaN, empty or infinite channel cell: repair or drop that row")
+            raise SfmnetError(f"{self.row_place(bad)} has a NaN, empty or infinite channel cell: repair or drop that row")
         layout = recording.layout
         time = None
         if self.time_column:
@@ -127,8 +127,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         loads = MappedColumns(layout, recording.load_index)
         for start in range(0, recording.rows if recording.load_index else 0, CHUNK_ROWS):
             known.append(start + np.nonzero(np.isfinite(loads[start : start + CHUNK_ROWS]).all(axis=1))[0])
-        where = (lambda row: f"line {row + 2} of {self.path}") if self.path.suffix != ".npy" else (lambda row: f"data row {row} (0-based) of {self.path}")
-        keep = fitted_rows(detection, np.concatenate(known) if known else np.zeros(0, dtype=int), recording.rank, where)
+        keep = fitted_rows(detection, np.concatenate(known) if known else np.zeros(0, dtype=int), recording.rank, self.row_place)
         if not detection.independent:
             recording.keep = keep
         return detection

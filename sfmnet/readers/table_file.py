@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import difflib
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,8 @@ class Table:
         text: name -> the first offending cells, for columns that are not all numeric (e.g. labels).
         corrupt: the text columns that are mostly numbers: numeric columns with bad cells.
         cells: every cell of each text column (category labels).
+        lines: the file line each row was read from (1-based; blank lines, comments and quoted cells
+            over several lines make it differ from the row's index), None for arrays (``.npy``, ``.npz``).
     """
 
     path: Path
@@ -39,6 +41,11 @@ class Table:
     text: dict[str, list[str]]
     corrupt: frozenset[str] = frozenset()
     cells: dict[str, list[str]] = field(default_factory=dict)
+    lines: np.ndarray | None = None
+
+    def row_place(self, row: int) -> str:
+        """Where data row ``row`` (0-based) is, in the words a user finds it by: ``line 17``, or ``data row 15 (0-based)``."""
+        return f"line {int(self.lines[row])}" if self.lines is not None else f"data row {row} (0-based)"
 
     def require(self, names: list[str], role: str) -> None:
         """Raise a clear error naming each missing column and its closest match."""
@@ -137,7 +144,11 @@ def _read_whitespace(path: Path, columns: list[str] | None) -> Table:
             f"{path} has no header row (its first line is numbers): name its {len(header)} columns with data.columns=[...]"
         )
     array = np.loadtxt(path, ndmin=2, skiprows=0 if columns else 1, dtype=np.float64, encoding="utf-8-sig")
-    return _from_array(path, array, columns or header)
+    table = _from_array(path, array, columns or header)
+    # The lines loadtxt reads: not blank, not only a '#' comment, after the header.
+    with path.open(encoding="utf-8-sig") as stream:
+        lines = [number for number, text in enumerate(stream, 1) if text.split("#")[0].strip()][0 if columns else 1 :]
+    return replace(table, lines=np.array(lines)) if len(lines) == len(array) else table
 
 
 def _is_number(text: str) -> bool:
@@ -173,30 +184,31 @@ def _read_csv(path: Path) -> Table:
                 corrupt.add(name)
         else:
             columns[name] = np.array(values, dtype=np.float64)
-    return Table(path, columns, text, frozenset(corrupt), cells_of)
+    return Table(path, columns, text, frozenset(corrupt), cells_of, np.array(lines))
 
 
 # Beyond this no sensor reads: a corrupt cell or a unit slip, which would swamp every other row.
 IMPLAUSIBLE = 1e15
 
 
-def check_finite(values: np.ndarray, names: list[str], path: Path, role: str) -> None:
-    """Refuse NaN, infinite or implausibly large readings, saying how many and where."""
-    refuse_cells(~np.isfinite(values), values, names, path, f"empty, NaN or infinite {role} values", "remove or repair those rows", False)
+def check_finite(values: np.ndarray, names: list[str], table: Table, role: str) -> None:
+    """Refuse NaN, infinite or implausibly large readings (``values``: ``table``'s columns ``names``), saying how many and where."""
+    refuse_cells(~np.isfinite(values), values, names, table, f"empty, NaN or infinite {role} values", "remove or repair those rows", False)
     refuse_cells(
-        np.abs(values) > IMPLAUSIBLE, values, names, path, f"{role} values beyond {IMPLAUSIBLE:.0e}",
+        np.abs(values) > IMPLAUSIBLE, values, names, table, f"{role} values beyond {IMPLAUSIBLE:.0e}",
         "a corrupt cell or a unit slip; repair those rows", True,
     )
 
 
 def refuse_cells(
-    bad: np.ndarray, values: np.ndarray, names: list[str], path: Path, what: str, remedy: str, show_value: bool
+    bad: np.ndarray, values: np.ndarray, names: list[str], table: Table, what: str, remedy: str, show_value: bool
 ) -> None:
     """Raise naming how many cells ``bad`` marks and the first three (file line, column, value)."""
     if not bad.any():
         return
     rows, cols = np.nonzero(bad)
     where = ", ".join(
-        f"line {r + 2} column {names[c]}" + (f" ({values[r, c]:.3g})" if show_value else "") for r, c in zip(rows[:3], cols[:3])
+        f"{table.row_place(r)} column {names[c]}" + (f" ({values[r, c]:.3g})" if show_value else "")
+        for r, c in zip(rows[:3], cols[:3])
     )
-    raise SfmnetError(f"{path} has {int(bad.sum())} {what} (first: {where}): {remedy}")
+    raise SfmnetError(f"{table.path} has {int(bad.sum())} {what} (first: {where}): {remedy}")
