@@ -77,7 +77,7 @@ class Calibration:
 
     @property
     def error_bars_trustworthy(self) -> bool:
-        """False when a goodness-of-fit check failed: ``matrix_std`` then understates the error."""
+        """False when a goodness-of-fit check or the fit itself failed: ``matrix_std`` then understates the error."""
         return bool(self.extra.get("error_bars_trustworthy", True))
 
     def to_dict(self) -> dict[str, Any]:

@@ -98,3 +98,34 @@ def test_block_size_does_not_change_the_answer(session: Path, tmp_path: Path):
     whole, _ = calibrate(session, tmp_path / "whole", "calibrate_stream")
     assert relative(small["matrix"], whole["matrix"]) < 1e-10
     assert torch.tensor(small["matrix"]).shape == (3, 6)
+
+
+def write_fingertip_band(path: Path, noise_fraction: float) -> Path:
+    """A 2-axis session on a band of directions (time, s0..s3, no loads) as a CSV."""
+    from sfmnet.simulators.simulated_sensor import FingertipDataModule
+
+    datamodule = FingertipDataModule(
+        magnitude=111.4, samples=96, known_loads=0, mirror_hint=False, noise_fraction=noise_fraction, seed=4,
+        orientation_law="band", errors={"angle_error_deg": 0.0},
+    )
+    datamodule.setup()
+    readings = datamodule.data.recordings["rotation"].readings.numpy()
+    table = np.column_stack([0.01 * np.arange(len(readings)), readings])
+    np.savetxt(path, table, delimiter=",", header="time,s0,s1,s2,s3", comments="", fmt="%.9f")
+    return path
+
+
+@pytest.mark.parametrize(("noise_fraction", "runs_away"), [(0.5, True), (0.05, False)])
+def test_an_alternation_that_runs_away_says_so_and_disowns_its_error_bars(tmp_path: Path, noise_fraction: float, runs_away: bool):
+    """At SNR 2 on a band the streamed alternation circles far from the closed form without converging (8.7x its
+    largest singular value); that is a failed fit, not a slow one: more passes are not the advice. At SNR 20 it is
+    neither."""
+    session = write_fingertip_band(tmp_path / "band.csv", noise_fraction)
+    overrides = ["data.magnitude=111.4", "data.load_columns=[]", "data.axes=[x,y]", "data.time_column=time", "trainer.enable_progress_bar=false"]
+    train(compose_config(["experiment=calibrate_stream", f"data.path={session}", *overrides]), tmp_path / "run")
+    calibration = json.loads((tmp_path / "run" / "calibration.json").read_text())
+    ran_away = [warning for warning in calibration["warnings"] if warning.startswith("the alternation ran away")]
+    assert bool(ran_away) == runs_away
+    assert not any("raise trainer.max_epochs" in warning for warning in calibration["warnings"])
+    if runs_away:
+        assert not calibration["error_bars_trustworthy"]

@@ -51,7 +51,7 @@ def trust_lines(metrics: dict[str, float], channels: list[str], load_unit: str, 
     if metrics.get("error_bars_trustworthy", 1.0):
         lines.append("error bars   trustworthy: every goodness-of-fit check passed")
     else:
-        lines.append("error bars   NOT TRUSTWORTHY: a goodness-of-fit check failed (the warnings say which)")
+        lines.append("error bars   NOT TRUSTWORTHY: a goodness-of-fit check or the fit failed (the warnings say which)")
     return [f"    {line}" for line in lines]
 
 

@@ -72,6 +72,11 @@ class LinearCalibrator(nn.Module, ABC):
         """What the fit itself has to say (e.g. not converged), beside the diagnostics' warnings."""
         return []
 
+    @property
+    def fit_failed(self) -> bool:
+        """Whether the fit itself failed (one of :attr:`fit_warnings` says how): its error bars mean nothing."""
+        return False
+
     def fit_mode(self) -> FitMode:
         return FitMode.STEPS
 

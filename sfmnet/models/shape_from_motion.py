@@ -61,6 +61,20 @@ PRIOR_SMOOTHING = 3.0
 MARGINAL_GRID_SPACING = 0.11
 
 
+def shape_growth(shape: torch.Tensor, closed_form_scale: float) -> float:
+    """The largest singular value of ``S`` (``n x p``) over the closed form's: past :data:`RUNAWAY_GROWTH` the alternation ran away."""
+    return float(torch.linalg.matrix_norm(shape, ord=2)) / closed_form_scale
+
+
+def runaway_warning(growth: float, remedy: str) -> str:
+    """The warning of an alternation whose shape grew ``growth`` times the closed form's, ending with ``remedy``."""
+    return (
+        f"the alternation ran away: the shape's largest singular value grew to {growth:.3g}x the closed form's, "
+        "so this calibration is wrong; at low SNR the likelihood of the shape and every sample's direction has no "
+        f"maximum: {remedy}"
+    )
+
+
 class ScaledBatch(NamedTuple):
     """A batch in the parameters' units: readings (``b x p``), loads (``b x n``, NaN where unknown), the
     unknown-row mask and each row's mass configuration (``b``, long)."""
@@ -164,18 +178,15 @@ class ShapeFromMotion(LinearCalibrator):
         self.register_buffer("row_configuration", None)
 
     @property
+    def fit_failed(self) -> bool:
+        return self.refinement == "alternation" and shape_growth(self.shape.detach(), self.closed_form_scale) > RUNAWAY_GROWTH
+
+    @property
     def fit_warnings(self) -> list[str]:
-        if self.refinement != "alternation":
+        if not self.fit_failed:
             return list(self.notes)
-        growth = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2)) / self.closed_form_scale
-        if growth <= RUNAWAY_GROWTH:
-            return list(self.notes)
-        return [
-            *self.notes,
-            f"the alternation ran away: the shape's largest singular value grew to {growth:.0f}x the closed form's, "
-            "so this calibration is wrong; at low SNR the likelihood of the shape and every sample's direction has no "
-            "maximum: use model.refinement=marginal (or auto)",
-        ]
+        growth = shape_growth(self.shape.detach(), self.closed_form_scale)
+        return [*self.notes, runaway_warning(growth, "use model.refinement=marginal (or auto)")]
 
     @property
     def constrained(self) -> bool:

@@ -63,6 +63,8 @@ class CalibrationTask(Task):
             outlying[goodness.outlier_rows] = True
             uncertainty = model.uncertainty(recording.without(outlying), loads[~outlying])
         warnings = [*data.warnings, *model.fit_warnings, *warnings]
+        # The error bars assume the model and a fit that worked; a failed check or fit says they cannot be believed.
+        trustworthy = goodness.trustworthy and not model.fit_failed
         calibration = model.to_calibration(
             data.channels,
             data.axes,
@@ -72,15 +74,14 @@ class CalibrationTask(Task):
                 "load_unit": data.load_unit,
                 "noise_std": uncertainty.noise_std,
                 "warnings": warnings,
-                # The error bars assume the model; a failed goodness-of-fit check says they cannot be believed.
-                "error_bars_trustworthy": goodness.trustworthy,
+                "error_bars_trustworthy": trustworthy,
                 "outlier_rows": goodness.outlier_rows[:100],
             },
             loads=loads,
         )
         metrics: dict[str, float] = {
             "residual_rms": calibration.residual_rms,
-            "error_bars_trustworthy": float(goodness.trustworthy),
+            "error_bars_trustworthy": float(trustworthy),
             "noise_std": uncertainty.noise_std,
             "matrix_std_relative": float(uncertainty.matrix_std.norm() / calibration.matrix.norm()),
             "fit_seconds": fitted.seconds,
