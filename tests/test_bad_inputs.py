@@ -48,9 +48,9 @@ def calibrate(tmp_path: Path, *overrides: str, edit=None, known_loads: int = 3) 
     return lambda: train(cfg, tmp_path / "run")
 
 
-def stream(tmp_path: Path, *overrides: str, edit=None) -> Action:
+def stream(tmp_path: Path, *overrides: str, edit=None, known_loads: int = 3) -> Action:
     """The same simulated session calibrated by streaming it (experiment=calibrate_stream)."""
-    return calibrate(tmp_path, "experiment=calibrate_stream", *overrides, edit=edit)
+    return calibrate(tmp_path, "experiment=calibrate_stream", *overrides, edit=edit, known_loads=known_loads)
 
 
 def blank_last_load(rows: list[list[str]]) -> None:
@@ -343,6 +343,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "non-numeric cell": (lambda t: calibrate(t, edit=set_cell(5, 2, "n/a")), r"channel column 's1' of .* is not numeric"),
     "NaN value": (lambda t: calibrate(t, edit=set_cell(7, 3, "nan")), r"1 empty, NaN or infinite reading values \(first: line 7 column s2\)"),
     "infinite value": (lambda t: calibrate(t, edit=set_cell(9, 1, "-inf")), r"1 empty, NaN or infinite reading values \(first: line 9 column s0\)"),
+    "no known loads, their empty columns left in": (
+        lambda t: calibrate(t, "data.load_columns=[]", "data.axes=[x,y,z]", known_loads=0),
+        r"columns fx, fy, fz of .*session.csv are empty on every row, so not a channel: list the channels with data.channel_columns",
+    ),
     "NaN value after blank lines": (
         lambda t: calibrate(t, edit=blank_lines_after_header(3, set_cell(7, 3, "nan"))),
         r"1 empty, NaN or infinite reading values \(first: line 10 column s2\)",
@@ -415,7 +419,11 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "stream: partly known load": (
         lambda t: stream(t, edit=blank_last_load), r"session.csv data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"
     ),
-    "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"line 7 of .*session.csv has a NaN, empty or infinite channel cell"),
+    "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"line 7 of .*session.csv has a NaN, empty or infinite channel cell \(s2\)"),
+    "stream: no known loads, their empty columns left in": (
+        lambda t: stream(t, "data.load_columns=[]", "data.axes=[x,y,z]", known_loads=0),
+        r"columns fx, fy, fz of .*session.csv are empty on each of the first \d+ rows, so not a channel",
+    ),
     "stream: NaN value after blank lines": (
         lambda t: stream(t, edit=blank_lines_after_header(2, set_cell(7, 3, "nan"))),
         r"line 9 of .*session.csv has a NaN, empty or infinite channel cell",

@@ -115,6 +115,13 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 f"{len(channels)} channel columns for {len(self.axes)} load axes: a calibration needs at "
                 "least as many channels as axes; list them with data.channel_columns=[...]"
             )
+        empty = [name for name in channels if name in table.columns and np.isnan(table.columns[name]).all()]
+        if empty and not self.channel_columns:
+            raise SfmnetError(
+                f"{'columns' if len(empty) > 1 else 'column'} {', '.join(empty)} of {self.path} "
+                f"{'are' if len(empty) > 1 else 'is'} empty on every row, so not a channel: list the channels "
+                "with data.channel_columns=[...], or name the known loads' columns in data.load_columns"
+            )
         readings = table.numeric(channels, "channel")
         check_finite(readings, channels, table, "reading")
         constant = [name for name, spread in zip(channels, readings.std(axis=0)) if spread == 0]

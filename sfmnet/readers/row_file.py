@@ -158,9 +158,18 @@ class RowFileDataModule(L.LightningDataModule):
         """``data_class`` over ``channels`` (and ``extra``), with the shift: the channels' mean over the first rows."""
         index = column_index(names, channels, "channel", self.path)
         first = np.asarray(mapped_rows(layout, 0, min(layout.shape[0], SHIFT_ROWS))[:, index], dtype=np.float64)
-        if not np.isfinite(first).all():
-            row = int(np.argmax(~np.isfinite(first).all(axis=1)))
-            raise SfmnetError(f"{self.row_place(row)} has a NaN, empty or infinite channel cell: repair or drop that row")
+        finite = np.isfinite(first)
+        if not finite.all():
+            empty = [channels[i] for i in np.nonzero(~finite.any(axis=0))[0]]
+            if empty:
+                raise SfmnetError(
+                    f"{'columns' if len(empty) > 1 else 'column'} {', '.join(empty)} of {self.path} "
+                    f"{'are' if len(empty) > 1 else 'is'} empty on each of the first {len(first)} rows, so not a channel: "
+                    "list the channels with data.channel_columns=[...], or name the known loads' columns in data.load_columns"
+                )
+            row = int(np.argmax(~finite.all(axis=1)))
+            columns = ", ".join(channels[i] for i in np.nonzero(~finite[row])[0])
+            raise SfmnetError(f"{self.row_place(row)} has a NaN, empty or infinite channel cell ({columns}): repair or drop that row")
         return data_class(
             layout=layout, channels=list(channels), channel_index=index, shift=torch.from_numpy(first.mean(axis=0)),
             source=self.path, **extra,
