@@ -174,6 +174,15 @@ def row_file(tmp_path: Path, name: str, content) -> Action:
     return lambda: RowFileDataModule(str(path)).setup()
 
 
+def pca_with_cell(tmp_path: Path, row: int, value: float) -> Action:
+    """PCA (experiment=pca) of 12,000 x 4 rows whose ``row`` (0-based) holds ``value`` in its column 2."""
+    rows = np.random.default_rng(0).normal(size=(12_000, 4))
+    rows[row, 2] = value
+    np.save(tmp_path / "rows.npy", rows)
+    cfg = compose_config(["experiment=pca", f"data.path={tmp_path / 'rows.npy'}", "model.rank=2"])
+    return lambda: train(cfg, tmp_path / "run")
+
+
 def pca_rank(tmp_path: Path) -> Action:
     np.save(tmp_path / "rows.npy", np.random.default_rng(0).normal(size=(100, 4)))
     cfg = compose_config(["experiment=pca", f"data.path={tmp_path / 'rows.npy'}", "model.rank=7"])
@@ -419,10 +428,13 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "stream: partly known load": (
         lambda t: stream(t, edit=blank_last_load), r"session.csv data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"
     ),
-    "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"line 7 of .*session.csv has a NaN, empty or infinite channel cell \(s2\)"),
+    "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"line 7 of .*session.csv has a NaN, empty or infinite channel cell, or one beyond 1e\+15 \(s2\)"),
     "stream: no known loads, their empty columns left in": (
         lambda t: stream(t, "data.load_columns=[]", "data.axes=[x,y,z]", known_loads=0),
         r"columns fx, fy, fz of .*session.csv are empty on each of the first \d+ rows, so not a channel",
+    ),
+    "stream: value of 1e30": (
+        lambda t: stream(t, edit=set_cell(4, 2, "1e30")), r"line 4 of .*session.csv has a NaN, empty or infinite channel cell, or one beyond 1e\+15 \(s1\)"
     ),
     "stream: NaN value after blank lines": (
         lambda t: stream(t, edit=blank_lines_after_header(2, set_cell(7, 3, "nan"))),
@@ -486,6 +498,11 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "rows: non-numeric CSV cell": (lambda t: row_file(t, "rows.csv", "a,b\n1,2\n3,x\n"), r"line 3 has a non-numeric cell"),
     "rows: not a matrix": (lambda t: row_file(t, "rows.npy", np.arange(5.0)), r"holds an array of shape \(5,\): save a C-order 2-D array"),
     "rows: rank above the columns": (pca_rank, r"model.rank is 7 but the file has 4 columns: choose 1 to 4"),
+    # Past the first rows (SHIFT_ROWS) a cell is seen only in the sums: 1e30 squared is still finite.
+    "pca: value of 1e30 far into the file": (
+        lambda t: pca_with_cell(t, 11_000, 1e30), r"rows.npy data row 11000 \(0-based\) has a NaN, empty or infinite channel cell, or one beyond 1e\+15"
+    ),
+    "pca: NaN far into the file": (lambda t: pca_with_cell(t, 11_500, np.nan), r"rows.npy data row 11500 \(0-based\) has a NaN"),
     # config values of the wrong type or out of range (sfmnet/config_values.py), refused before anything is built
     "text magnitude": (lambda t: calibrate(t, "data.magnitude=abc"), r"data.magnitude is 'abc': give a number > 0"),
     "text mirror sign": (

@@ -138,6 +138,23 @@ def test_frame_rotation_with_full_known_loads_is_procrustes():
     assert torch.allclose(frame_rotation(loads @ rotation.T, loads), rotation, atol=1e-12)
 
 
+@pytest.mark.parametrize("axis", [0, 2])
+def test_a_mirror_hint_picks_the_image_only_where_the_images_differ_in_sign(axis: int):
+    """Two known loads in the x-y plane leave z free: a hint row loaded along (0.9, 0.1, 0.42) has fx > 0 in both
+    mirror images, so a hint on fx cannot choose and is refused; on fz it picks the true frame (a user's hint on the
+    row's largest component had silently taken the mirror image, 116 % load error)."""
+    generator = torch.Generator().manual_seed(3)
+    rotation, _ = torch.linalg.qr(torch.randn(3, 3, generator=generator, dtype=torch.float64))
+    known = torch.tensor([[9.81, 0.0, 0.0], [0.0, 9.81, 0.0]], dtype=torch.float64)
+    hint_load = torch.nn.functional.normalize(torch.tensor([[0.9, 0.1, 0.42]], dtype=torch.float64)) * 9.81
+    hint = MirrorHint(sample=0, axis=axis, sign=1)
+    if axis == 0:
+        with pytest.raises(SfmnetError, match=r"cannot pick the mirror image: its row's load has sign \+1 on axis 0"):
+            frame_rotation(known @ rotation.T, known, hint_load @ rotation.T, hint)
+    else:
+        assert torch.allclose(frame_rotation(known @ rotation.T, known, hint_load @ rotation.T, hint), rotation, atol=1e-12)
+
+
 def test_least_squares_refuses_loads_that_do_not_span():
     loads = torch.tensor([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]], dtype=torch.float64)
     with pytest.raises(SfmnetError, match="span"):

@@ -186,17 +186,21 @@ def test_integer_counts_and_wrong_widths_in_apply(tmp_path: Path):
 
 
 def test_mirror_hint_from_python_with_n_minus_one_known_loads(tmp_path: Path):
-    """Two known loads in 3-D leave a mirror image; the hint, given as a mapping, picks the right one."""
+    """Two known loads in 3-D leave a mirror image; the hint, given as a mapping, picks the right one. The hint is
+    on a row whose load points out of the known loads' plane, along that plane's normal (where the images differ)."""
     _, table = read_session(write_session_path(tmp_path))
     readings, loads = table[:, 1:7], table[:, 7:10]
     reference = sfmnet.calibrate(readings, magnitude=9.81, loads=loads, axes=["fx", "fy", "fz"])
     two_known = loads.copy()
     two_known[np.flatnonzero(np.isfinite(loads).all(axis=1))[-1]] = np.nan
-    row = int(np.flatnonzero(np.isnan(two_known).any(axis=1))[0])
+    known = two_known[np.isfinite(two_known).all(axis=1)]
+    normal = np.cross(known[0], known[1])
+    unknown = np.flatnonzero(np.isnan(two_known).any(axis=1))
     # The hint: roughly which way that row's load pointed (here from the three-load calibration).
-    load = reference.apply(readings[row : row + 1])[0]
-    axis = int(np.argmax(np.abs(load)))
-    hint = {"row": row, "axis": ["fx", "fy", "fz"][axis], "sign": int(np.sign(load[axis]))}
+    applied = np.asarray(reference.apply(readings))
+    row = int(unknown[np.argmax(np.abs(applied[unknown] @ normal))])
+    axis = int(np.argmax(np.abs(normal)))
+    hint = {"row": row, "axis": ["fx", "fy", "fz"][axis], "sign": int(np.sign(applied[row, axis]))}
     with pytest.raises(sfmnet.SfmnetError, match="mirror"):
         sfmnet.calibrate(readings, magnitude=9.81, loads=two_known, axes=["fx", "fy", "fz"])
     cal = sfmnet.calibrate(readings, magnitude=9.81, loads=two_known, axes=["fx", "fy", "fz"], data={"mirror_hint": hint})

@@ -12,9 +12,14 @@ import torch
 
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
+from sfmnet.linalg.moments import Moments
 
 SHIFT_ROWS = 10_000
 BLOCK_BYTES = 32 * 2**20
+
+
+# Beyond this no sensor reads: a corrupt cell or a unit slip, which would swamp every other row.
+IMPLAUSIBLE = 1e15
 
 
 @dataclass(frozen=True)
@@ -99,15 +104,26 @@ class RowData:
     def recordings(self) -> dict[str, RowData]:
         return {self.recording: self}
 
-    def first_non_finite_row(self) -> int | None:
-        """The first row with a NaN, empty or infinite channel cell (a scan: for error messages only)."""
+    def first_bad_row(self) -> int | None:
+        """The first row with a NaN, empty, infinite or implausible (beyond :data:`IMPLAUSIBLE`) channel cell (a scan)."""
         block = max(1, BLOCK_BYTES // (8 * self.layout.shape[1]))
         for start in range(0, self.rows, block):
             values = np.asarray(mapped_rows(self.layout, start, min(block, self.rows - start))[:, self.channel_index])
-            bad = ~np.isfinite(values).all(axis=1)
+            bad = ~(np.abs(values) <= IMPLAUSIBLE).all(axis=1)
             if bad.any():
                 return start + int(np.argmax(bad))
         return None
+
+    def require_plausible(self, moments: Moments) -> None:
+        """Refuse, naming its row, a NaN, infinite or implausible cell, which poisons the sums ``moments`` (scans on suspicion only)."""
+        if bool(torch.isfinite(moments.cross).all()) and float(moments.cross.diagonal().max()) <= IMPLAUSIBLE**2:
+            return
+        row = self.first_bad_row()
+        if row is not None:
+            raise SfmnetError(
+                f"{self.file} data row {row} (0-based) has a NaN, empty or infinite channel cell, or one beyond "
+                f"{IMPLAUSIBLE:.0e} (a corrupt cell or a unit slip): repair or drop that row"
+            )
 
 
 @dataclass

@@ -232,11 +232,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
     def solve_subspace(self) -> None:
         """Pass 1: the principal subspace of the readings (eqs. 6-8) and the known rows' checks."""
         moments, data, n = self.moments, self.data, self.rank
-        if not bool(torch.isfinite(moments.cross).all()):
-            raise SfmnetError(
-                f"{data.file} data row {data.first_non_finite_row()} (0-based) has a NaN, empty or infinite "
-                "channel cell: repair or drop that row"
-            )
+        data.require_plausible(moments)
         if self.first_partial_row < data.rows:
             raise SfmnetError(
                 f"{data.file} data row {self.first_partial_row} (0-based) gives only some of "

@@ -75,7 +75,7 @@ class StreamingPCA(nn.Module):
     def finalise(self) -> None:
         if self.moments.count <= self.rank:
             raise SfmnetError(f"{int(self.moments.count)} rows for {self.rank} components: give more rows or a smaller model.rank")
-        require_finite(self.moments, self.data)
+        self.data.require_plausible(self.moments)
         components, singular = principal_subspace(self.moments.centred_cross(), self.rank)
         self.components.copy_(components)
         self.mean.copy_(self.moments.mean())
@@ -88,11 +88,3 @@ class StreamingPCA(nn.Module):
             return self.components.detach()
         return self.singular_values.sqrt()[:, None] * self.components.detach()
 
-
-def require_finite(moments: Moments, data: RowData) -> None:
-    """A NaN or infinite cell anywhere poisons the sums: name its row (one scan, on this error path only)."""
-    if not bool(torch.isfinite(moments.cross).all()):
-        row = data.first_non_finite_row()
-        raise SfmnetError(
-            f"{data.file} data row {row} (0-based) has a NaN, empty or infinite channel cell: repair or drop that row"
-        )

@@ -21,7 +21,7 @@ import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from sfmnet.data.rows import BLOCK_BYTES, SHIFT_ROWS, NpyLayout, RowBlock, RowData, mapped_rows, npy_layout
+from sfmnet.data.rows import BLOCK_BYTES, IMPLAUSIBLE, SHIFT_ROWS, NpyLayout, RowBlock, RowData, mapped_rows, npy_layout
 from sfmnet.errors import SfmnetError
 from sfmnet.io import temporary_beside
 from sfmnet.readers.delimited import DelimitedFile, decimal_comma_hint, open_delimited
@@ -158,7 +158,7 @@ class RowFileDataModule(L.LightningDataModule):
         """``data_class`` over ``channels`` (and ``extra``), with the shift: the channels' mean over the first rows."""
         index = column_index(names, channels, "channel", self.path)
         first = np.asarray(mapped_rows(layout, 0, min(layout.shape[0], SHIFT_ROWS))[:, index], dtype=np.float64)
-        finite = np.isfinite(first)
+        finite = np.abs(first) <= IMPLAUSIBLE
         if not finite.all():
             empty = [channels[i] for i in np.nonzero(~finite.any(axis=0))[0]]
             if empty:
@@ -169,7 +169,10 @@ class RowFileDataModule(L.LightningDataModule):
                 )
             row = int(np.argmax(~finite.all(axis=1)))
             columns = ", ".join(channels[i] for i in np.nonzero(~finite[row])[0])
-            raise SfmnetError(f"{self.row_place(row)} has a NaN, empty or infinite channel cell ({columns}): repair or drop that row")
+            raise SfmnetError(
+                f"{self.row_place(row)} has a NaN, empty or infinite channel cell, or one beyond {IMPLAUSIBLE:.0e} ({columns}): "
+                "repair or drop that row"
+            )
         return data_class(
             layout=layout, channels=list(channels), channel_index=index, shift=torch.from_numpy(first.mean(axis=0)),
             source=self.path, **extra,

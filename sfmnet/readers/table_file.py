@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sfmnet.data.rows import IMPLAUSIBLE
 from sfmnet.errors import SfmnetError
 from sfmnet.readers.delimited import decimal_comma_hint, open_delimited
 from sfmnet.readers.input_file import check_input_file
@@ -187,8 +188,6 @@ def _read_csv(path: Path) -> Table:
     return Table(path, columns, text, frozenset(corrupt), cells_of, np.array(lines))
 
 
-# Beyond this no sensor reads: a corrupt cell or a unit slip, which would swamp every other row.
-IMPLAUSIBLE = 1e15
 
 
 def check_finite(values: np.ndarray, names: list[str], table: Table, role: str) -> None:
