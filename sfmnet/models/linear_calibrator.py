@@ -74,7 +74,7 @@ class LinearCalibrator(nn.Module, ABC):
 
     @property
     def fit_failed(self) -> bool:
-        """Whether the fit itself failed (one of :attr:`fit_warnings` says how): its error bars mean nothing."""
+        """Whether the fit itself failed or is biased beyond its error bars (one of :attr:`fit_warnings` says how)."""
         return False
 
     def fit_mode(self) -> FitMode:

@@ -52,6 +52,10 @@ ALTERNATION_TOLERANCE = 1e-9
 # likelihood of the shape and every sample's direction has no maximum at low SNR (README, "Error against the
 # Cramér-Rao bound": at SNR 2 it grew 1000x on a band of directions).
 RUNAWAY_GROWTH = 10.0
+# Below this SNR (as "auto" estimates it) the alternation's estimate is biased by more than its error bars:
+# over the orientation laws of bench/crb_ratio.py --laws it was 0.9-4.9x the Cramer-Rao bound at SNR 5 (and ran
+# away at SNR 2), within 1.6x at SNR 20.
+ALTERNATION_BIASED_BELOW_SNR = 10.0
 # Smoothed EM steps of the directions' distribution per training step of the marginal refinement.
 PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
@@ -72,6 +76,14 @@ def runaway_warning(growth: float, remedy: str) -> str:
         f"the alternation ran away: the shape's largest singular value grew to {growth:.3g}x the closed form's, "
         "so this calibration is wrong; at low SNR the likelihood of the shape and every sample's direction has no "
         f"maximum: {remedy}"
+    )
+
+
+def low_snr_warning(snr: float, remedy: str) -> str:
+    """The warning of an alternation fitted at ``snr`` below :data:`ALTERNATION_BIASED_BELOW_SNR`, ending with ``remedy``."""
+    return (
+        f"SNR {snr:.1f} (F |s| / noise) is below {ALTERNATION_BIASED_BELOW_SNR:g}, where the alternation's estimate is biased "
+        f"by more than its error bars (the bias grows as 1/SNR^2), so neither is to be trusted: {remedy}"
     )
 
 
@@ -179,14 +191,22 @@ class ShapeFromMotion(LinearCalibrator):
 
     @property
     def fit_failed(self) -> bool:
-        return self.refinement == "alternation" and shape_growth(self.shape.detach(), self.closed_form_scale) > RUNAWAY_GROWTH
+        return bool(self.fit_problems())
 
     @property
     def fit_warnings(self) -> list[str]:
-        if not self.fit_failed:
-            return list(self.notes)
+        return [*self.notes, *self.fit_problems()]
+
+    def fit_problems(self) -> list[str]:
+        """Why the alternation's answer and error bars are not to be trusted: it ran away, or the SNR is too low for it."""
+        if self.refinement != "alternation":
+            return []
         growth = shape_growth(self.shape.detach(), self.closed_form_scale)
-        return [*self.notes, runaway_warning(growth, "use model.refinement=marginal (or auto)")]
+        if growth > RUNAWAY_GROWTH:
+            return [runaway_warning(growth, "use model.refinement=marginal (or auto)")]
+        if self.constrained and self.snr < ALTERNATION_BIASED_BELOW_SNR:
+            return [low_snr_warning(self.snr, "set model.refinement=marginal")]
+        return []
 
     @property
     def constrained(self) -> bool:
@@ -213,7 +233,7 @@ class ShapeFromMotion(LinearCalibrator):
             self.coverage = require_coverage(directions.T @ directions, len(directions), 1.0)
         self.orient(recording)
         self.closed_form_scale = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2))
-        if self.refinement in ("auto", "marginal") and self.constrained:
+        if self.constrained:
             noise = self.closed_form_noise(recording)
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":

@@ -29,7 +29,13 @@ from sfmnet.linalg.moments import (
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
 from sfmnet.models.contracts import FitMode
 from sfmnet.models.linear_calibrator import LinearCalibrator, UnknownRows
-from sfmnet.models.shape_from_motion import RUNAWAY_GROWTH, runaway_warning, shape_growth
+from sfmnet.models.shape_from_motion import (
+    ALTERNATION_BIASED_BELOW_SNR,
+    RUNAWAY_GROWTH,
+    low_snr_warning,
+    runaway_warning,
+    shape_growth,
+)
 
 REFINEMENTS = ("alternation", "closed_form")
 # Rounds the alternation mixes: one per pass, so a longer memory than in memory pays.
@@ -103,7 +109,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
     # it, so a resumed fit keeps the passes it finished and reads the interrupted one again.
     PASS_STATE = (
         "passes", "converged", "sample", "first_partial_row", "known", "centre", "singular_values", "affine_shape",
-        "projection", "coverage", "frame_fixed", "reading_scale", "load_scale", "closed_form_scale",
+        "projection", "coverage", "frame_fixed", "reading_scale", "load_scale", "closed_form_scale", "residual_squares",
     )
 
     def get_extra_state(self) -> dict[str, object]:
@@ -339,24 +345,31 @@ class StreamedShapeFromMotion(LinearCalibrator):
 
     @property
     def fit_failed(self) -> bool:
+        return bool(self.fit_problems())
+
+    def fit_problems(self) -> list[str]:
+        """Why the alternation's answer and error bars are not to be trusted: it ran away, or the SNR is too low for it."""
         if self.passes <= 2:
-            return False
-        limit = RUNAWAY_GROWTH if self.converged else GROWTH_WHILE_UNCONVERGED
-        return shape_growth(self.shape.detach(), self.closed_form_scale) > limit
+            return []
+        growth = shape_growth(self.shape.detach(), self.closed_form_scale)
+        if growth > (RUNAWAY_GROWTH if self.converged else GROWTH_WHILE_UNCONVERGED):
+            remedy = "more passes will not help; calibrate in memory with experiment=calibrate_csv (its auto refinement "
+            return [runaway_warning(growth, remedy + "takes the marginal likelihood at low SNR) or keep model.refinement=closed_form")]
+        snr = self.signal_to_noise()
+        if snr < ALTERNATION_BIASED_BELOW_SNR:
+            return [low_snr_warning(snr, "calibrate in memory with experiment=calibrate_csv (its auto refinement avoids the bias)")]
+        return []
+
+    def signal_to_noise(self) -> float:
+        """``F |s| / noise`` with the last pass's residual RMS for the noise, as ``ShapeFromMotion`` judges it by."""
+        noise = float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt())
+        return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
 
     @property
     def fit_warnings(self) -> list[str]:
-        if self.fit_failed:
-            growth = shape_growth(self.shape.detach(), self.closed_form_scale)
-            return [
-                runaway_warning(
-                    growth,
-                    "more passes will not help; calibrate in memory with experiment=calibrate_csv (its auto refinement "
-                    "takes the marginal likelihood at low SNR) or keep the closed form with model.refinement=closed_form",
-                )
-            ]
-        if self.converged:
-            return []
+        problems = self.fit_problems()
+        if problems or self.converged:
+            return problems
         step = self.acceleration.step_norm
         return [
             (
