@@ -379,11 +379,15 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "known load in motion": (lambda t: continuous(t, poses=10, known_in_motion=True), r"the known load on line 42 of .*stream.csv was recorded in motion"),
     "time cell empty": (
         lambda t: calibrate(t, edit=set_cell(6, 0, "")),
-        r"the time of data row 4 \(0-based\) is empty or not a number: rows must be in strictly increasing time order",
+        r"the time on line 6 of .*session.csv is empty or not a number: rows must be in strictly increasing time order",
+    ),
+    "time cell empty after blank lines, streamed": (
+        lambda t: stream(t, edit=blank_lines_after_header(2, set_cell(6, 0, ""))),
+        r"the time on line 8 of .*session.csv is empty or not a number",
     ),
     "time out of order": (
         lambda t: calibrate(t, edit=set_cell(6, 0, "0.001")),
-        r"the time of data row 4 \(0-based\) is not after the row before's",
+        r"the time on line 6 of .*session.csv is not after the row before's",
     ),
     "known load at an interval's edge": (
         lambda t: continuous(t, poses=10, known_at_edge=True),
@@ -406,6 +410,11 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "decimal commas in a comma-separated file": (
         lambda t: calibrate_file(t, "s0,s1,fx,fy,fz\n1,5,2,,,\n"),
         r"line 2 has 6 cells but the header has 5 \(if ',' is also the decimal mark, save the file ';'-separated\)",
+    ),
+    # The file already reads its decimal commas: a word among them is no decimal-mark problem.
+    "word among decimal commas in a ';'-separated file": (
+        lambda t: calibrate_file(t, "s0;s1;s2;fx;fy;fz\n" + "".join(f"{i},5;{i},25;{i % 3},75;;;\n" for i in range(9)) + "abc;1,5;2;;;\n"),
+        r"channel column 's0' of .*session.csv is not numeric: \[\"line 11: 'abc'\"\]$",
     ),
     "quoted decimal comma in a comma-separated file": (
         lambda t: calibrate(t, edit=set_cell(5, 2, "1,5")), r"channel column 's1' of .* is not numeric: .*\(',' as the decimal mark",

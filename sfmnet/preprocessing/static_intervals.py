@@ -18,7 +18,7 @@ map), so memory is ``O(f)`` bytes for the mask whatever the number of channels.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from statistics import NormalDist
 from typing import Protocol
@@ -114,6 +114,11 @@ class StaticIntervals:
         return close_previous | close_following
 
 
+def data_row(row: int) -> str:
+    """A row's place where the file is unknown: ``data row 17 (0-based)``."""
+    return f"data row {row} (0-based)"
+
+
 def find_static_intervals(
     readings: Rows,
     time: Rows | None = None,
@@ -122,6 +127,7 @@ def find_static_intervals(
     threshold: float = DEFAULT_THRESHOLD,
     noise_quantile: float = DEFAULT_NOISE_QUANTILE,
     chunk_rows: int = CHUNK_ROWS,
+    where: Callable[[int], str] = data_row,
 ) -> StaticIntervals:
     """Find the static intervals of a recording (module docstring).
 
@@ -136,6 +142,7 @@ def find_static_intervals(
             deviation (corrected to the noise's for Gaussian noise): at least this fraction of
             the rows must be static.
         chunk_rows: rows read at a time.
+        where: a row's place in the file for messages, e.g. ``line 17 of session.csv``.
 
     Returns:
         :class:`StaticIntervals`.
@@ -148,7 +155,7 @@ def find_static_intervals(
         raise ValueError("window and min_duration must be positive")
     if not 0 < noise_quantile < 1 or not threshold > 0:
         raise ValueError("noise_quantile must lie in (0, 1) and threshold be positive")
-    scan = serial_scan(readings, time, chunk_rows)
+    scan = serial_scan(readings, time, chunk_rows, where)
     period = scan.period
     window = DEFAULT_WINDOW[time is not None] if window is None else window
     half = max(1, round(window / (period or 1.0) / 2))
@@ -206,7 +213,7 @@ class SerialScan:
         return seconds
 
 
-def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int) -> SerialScan:
+def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Callable[[int], str] = data_row) -> SerialScan:
     """The serial ratio (consecutive steps against the spread), the median time step, the smallest
     nonzero step of each channel (its quantisation) and a thinned preview, in one pass."""
     f, p = readings.shape
@@ -221,7 +228,7 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int) -> SerialSca
         block = np.asarray(readings[first : first + chunk_rows], dtype=np.float64) - shift
         bad = ~np.isfinite(block).all(axis=1)
         if bad.any():
-            raise SfmnetError(f"row {first + int(np.argmax(bad))} (0-based) has a NaN or infinite reading: repair or drop that row")
+            raise SfmnetError(f"{where(first + int(np.argmax(bad)))} has a NaN or infinite reading: repair or drop that row")
         joined = block if previous is None else np.concatenate([previous, block])
         difference = np.abs(np.diff(joined, axis=0))
         steps += (difference**2).sum(axis=0)
@@ -241,7 +248,7 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int) -> SerialSca
                 row = first - (previous_time is not None) + offset
                 what = "empty or not a number" if not np.isfinite(joined_time[offset]) else "not after the row before's"
                 raise SfmnetError(
-                    f"the time of data row {row} (0-based) is {what}: rows must be in strictly increasing time order; "
+                    f"the time on {where(row)} is {what}: rows must be in strictly increasing time order; "
                     "repair or drop that row (or fit without static intervals: data.static_intervals=false)"
                 )
             if len(increments):

@@ -144,7 +144,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         detection, keep = None, np.ones(len(readings), dtype=bool)
         if self.static is not None:
             time = table.numeric([self.time_column], "time")[:, 0] * self.static.time_scale if self.time_column else None
-            detection = self.static.detect(readings, time)
+            detection = self.static.detect(readings, time, lambda row: f"{table.row_place(row)} of {self.path}")
             known = np.nonzero(~np.isnan(loads).any(axis=1))[0]
             keep = fitted_rows(
                 detection, known, len(self.axes), lambda row: f"{table.row_place(row)} of {self.path}",

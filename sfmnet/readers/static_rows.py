@@ -37,10 +37,11 @@ class StaticSettings:
     noise_quantile: float
     time_scale: float
 
-    def detect(self, readings: Rows, time: Rows | None) -> StaticIntervals:
+    def detect(self, readings: Rows, time: Rows | None, where: Callable[[int], str]) -> StaticIntervals:
+        """The static intervals; ``where`` names a row's place in the file for messages."""
         return find_static_intervals(
             readings, time, window=self.window, min_duration=self.min_duration,
-            threshold=self.threshold, noise_quantile=self.noise_quantile,
+            threshold=self.threshold, noise_quantile=self.noise_quantile, where=where,
         )
 
 

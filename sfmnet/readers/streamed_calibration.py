@@ -126,7 +126,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         time = None
         if self.time_column:
             time = MappedColumns(layout, column_index(names, [self.time_column], "time", self.path), self.static.time_scale, vector=True)
-        detection = self.static.detect(MappedColumns(layout, recording.channel_index), time)
+        detection = self.static.detect(MappedColumns(layout, recording.channel_index), time, self.row_place)
         known = []
         loads = MappedColumns(layout, recording.load_index)
         for start in range(0, recording.rows if recording.load_index else 0, CHUNK_ROWS):

@@ -33,6 +33,7 @@ class Table:
         text: name -> the first offending cells, for columns that are not all numeric (e.g. labels).
         corrupt: the text columns that are mostly numbers: numeric columns with bad cells.
         cells: every cell of each text column (category labels).
+        hints: what to do about a text column's refused cells (decimal commas), by column.
         lines: the file line each row was read from (1-based; blank lines, comments and quoted cells
             over several lines make it differ from the row's index), None for arrays (``.npy``, ``.npz``).
     """
@@ -43,6 +44,7 @@ class Table:
     corrupt: frozenset[str] = frozenset()
     cells: dict[str, list[str]] = field(default_factory=dict)
     lines: np.ndarray | None = None
+    hints: dict[str, str] = field(default_factory=dict)
 
     def row_place(self, row: int) -> str:
         """Where data row ``row`` (0-based) is, in the words a user finds it by: ``line 17``, or ``data row 15 (0-based)``."""
@@ -54,8 +56,7 @@ class Table:
             if name not in self.columns and name not in self.text:
                 raise missing_column(name, role, self.path, [*self.columns, *self.text])
             if name in self.text:
-                hint = decimal_comma_hint(self.cells.get(name, []))
-                raise SfmnetError(f"{role} column '{name}' of {self.path} is not numeric: {self.text[name]}{hint}")
+                raise SfmnetError(f"{role} column '{name}' of {self.path} is not numeric: {self.text[name]}{self.hints.get(name, '')}")
 
     def categorical(self, name: str, role: str) -> np.ndarray:
         """One column's values as categories: the text labels, or the numbers of a numeric column."""
@@ -174,18 +175,20 @@ def _read_csv(path: Path) -> Table:
     text: dict[str, list[str]] = {}
     cells_of: dict[str, list[str]] = {}
     corrupt: set[str] = set()
+    hints: dict[str, str] = {}
     for index, name in enumerate(header):
         cells = [row[index] for row in body]
         values = [source.number(cell) for cell in cells]
         if any(value is None for value in values):
             bad = [(line, cell) for line, cell, value in zip(lines, cells, values) if value is None]
             text[name] = [f"line {line}: '{cell}'" for line, cell in bad[:3]] + ([f"... {len(bad)} cells"] if len(bad) > 3 else [])
+            hints[name] = decimal_comma_hint(cell for _, cell in bad)
             cells_of[name] = cells
             if len(bad) < len(cells) / 2:
                 corrupt.add(name)
         else:
             columns[name] = np.array(values, dtype=np.float64)
-    return Table(path, columns, text, frozenset(corrupt), cells_of, np.array(lines))
+    return Table(path, columns, text, frozenset(corrupt), cells_of, np.array(lines), hints)
 
 
 
