@@ -172,3 +172,21 @@ def test_conversion_leaves_another_runs_half_written_file_alone(tmp_path: Path):
     np.testing.assert_array_equal(np.load(cache), [[1, 2], [3, 4]])
     assert [other.read_bytes() for other in others] == [b"another run's half-written conversion"] * 2
     assert sorted(p.name for p in cache.parent.iterdir()) == sorted([cache.name, *(other.name for other in others)])
+
+
+def test_a_whitespace_table_reads_past_blank_and_comment_lines_and_names_their_lines(tmp_path: Path):
+    """A logger's or MATLAB's ``save -ascii`` table (.txt): its blank and '#' lines are skipped, and a bad value is
+    refused by the line an editor shows, not by numpy's count of the rows it kept."""
+    from sfmnet.errors import SfmnetError
+
+    text = "a b c\n1 2 3\n\n# moved the mass\n4 5 6  # settled\n7 8 9\n"
+    (tmp_path / "rows.txt").write_text(text)
+    table = read_table(tmp_path / "rows.txt")
+    assert table.numeric(["a", "b", "c"], "channel").tolist() == [[1, 2, 3], [4, 5, 6], [7, 8, 9]]
+    assert table.row_place(2) == "line 6"
+    (tmp_path / "word.txt").write_text(text.replace("8", "n/a"))
+    with pytest.raises(SfmnetError, match=r"word.txt line 6 has a non-numeric value \('n/a'\): a .txt or .dat table holds numbers only"):
+        read_table(tmp_path / "word.txt")
+    (tmp_path / "short.txt").write_text(text.replace("4 5 6", "4 5"))
+    with pytest.raises(SfmnetError, match=r"short.txt line 5 has 2 values but the table has 3 columns"):
+        read_table(tmp_path / "short.txt")

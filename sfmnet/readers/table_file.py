@@ -145,12 +145,20 @@ def _read_whitespace(path: Path, columns: list[str] | None) -> Table:
         raise SfmnetError(
             f"{path} has no header row (its first line is numbers): name its {len(header)} columns with data.columns=[...]"
         )
-    array = np.loadtxt(path, ndmin=2, skiprows=0 if columns else 1, dtype=np.float64, encoding="utf-8-sig")
-    table = _from_array(path, array, columns or header)
     # The lines loadtxt reads: not blank, not only a '#' comment, after the header.
     with path.open(encoding="utf-8-sig") as stream:
-        lines = [number for number, text in enumerate(stream, 1) if text.split("#")[0].strip()][0 if columns else 1 :]
-    return replace(table, lines=np.array(lines)) if len(lines) == len(array) else table
+        rows = [(number, text.split("#")[0].split()) for number, text in enumerate(stream, 1) if text.split("#")[0].strip()]
+    rows = rows[0 if columns else 1 :]
+    width = len(columns or header)
+    for number, cells in rows:
+        if len(cells) != width:
+            raise SfmnetError(f"{path} line {number} has {len(cells)} values but the table has {width} columns")
+        refused = next((cell for cell in cells if not _is_number(cell)), None)
+        if refused is not None:
+            raise SfmnetError(f"{path} line {number} has a non-numeric value ('{refused}'): a .txt or .dat table holds numbers only")
+    array = np.loadtxt(path, ndmin=2, skiprows=0 if columns else 1, dtype=np.float64, encoding="utf-8-sig")
+    table = _from_array(path, array, columns or header)
+    return replace(table, lines=np.array([number for number, _ in rows])) if len(rows) == len(array) else table
 
 
 def _is_number(text: str) -> bool:
