@@ -435,7 +435,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: calibrate_path(t, fifo(t, "session.csv"), "calibrate_stream"), r"is a FIFO \(named pipe\), not a regular file: data.path needs",
     ),
     "stream: partly known load": (
-        lambda t: stream(t, edit=blank_last_load), r"session.csv data row \d+ \(0-based\) gives only some of fx, fy, fz: fill every load column"
+        lambda t: stream(t, edit=blank_last_load), r"line \d+ of .*session.csv gives only some of fx, fy, fz: fill every load column"
     ),
     "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"line 7 of .*session.csv has a NaN, empty or infinite channel cell, or one beyond 1e\+15 \(s2\)"),
     "stream: no known loads, their empty columns left in": (
@@ -451,7 +451,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     ),
     "stream: missing column": (lambda t: stream(t, "data.load_columns=[fx,fy,fzz]"), r"load column 'fzz' is not in .*session.csv"),
     "stream: wrong magnitude": (
-        lambda t: stream(t, "data.magnitude=12.0"), r"known load on data row \d+ \(0-based\) of .*session.csv has magnitude 9.81 but data.magnitude is 12"
+        lambda t: stream(t, "data.magnitude=12.0"), r"known load on line \d+ of .*session.csv has magnitude 9.81 but data.magnitude is 12"
     ),
     "stream: collinear motion": (lambda t: stream(t, edit=project_unknown_loads(1)), r"collinear"),
     "stream: every load known": (lambda t: stream(t, "model.max_known_rows=2"), r"3 rows have known loads \(model.max_known_rows is 2\)"),
@@ -509,9 +509,9 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "rows: rank above the columns": (pca_rank, r"model.rank is 7 but the file has 4 columns: choose 1 to 4"),
     # Past the first rows (SHIFT_ROWS) a cell is seen only in the sums: 1e30 squared is still finite.
     "pca: value of 1e30 far into the file": (
-        lambda t: pca_with_cell(t, 11_000, 1e30), r"rows.npy data row 11000 \(0-based\) has a NaN, empty or infinite channel cell, or one beyond 1e\+15"
+        lambda t: pca_with_cell(t, 11_000, 1e30), r"data row 11000 \(0-based\) of .*rows.npy has a NaN, empty or infinite channel cell, or one beyond 1e\+15"
     ),
-    "pca: NaN far into the file": (lambda t: pca_with_cell(t, 11_500, np.nan), r"rows.npy data row 11500 \(0-based\) has a NaN"),
+    "pca: NaN far into the file": (lambda t: pca_with_cell(t, 11_500, np.nan), r"data row 11500 \(0-based\) of .*rows.npy has a NaN"),
     # config values of the wrong type or out of range (sfmnet/config_values.py), refused before anything is built
     "text magnitude": (lambda t: calibrate(t, "data.magnitude=abc"), r"data.magnitude is 'abc': give a number > 0"),
     "text mirror sign": (

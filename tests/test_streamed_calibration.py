@@ -133,3 +133,20 @@ def test_a_biased_or_runaway_alternation_says_so_and_disowns_its_error_bars(
     assert [w[: len(problem)] for w in problems] == ([problem] if problem else [])
     assert not any("raise trainer.max_epochs" in warning for warning in calibration["warnings"])
     assert calibration["error_bars_trustworthy"] == (problem is None)
+
+
+def test_a_refused_row_far_in_a_streamed_csv_is_named_by_its_file_line(tmp_path: Path):
+    """Rows the streamed model refuses in its passes (here the last row's load given in part) are named by the
+    line an editor shows, past blank lines, in the user's CSV (not the .npy the CSV was converted to)."""
+    from sfmnet.errors import SfmnetError
+
+    def blank_lines_and_partial_last_load(rows: list[list[str]]) -> None:
+        rows[-1][-1] = ""
+        rows[1:1] = [[], []]
+
+    session = tmp_path / "session.csv"
+    write_session(session, known_loads=3, edit=blank_lines_and_partial_last_load)
+    last_line = len(session.read_text().splitlines())
+    cfg = compose_config(["experiment=calibrate_stream", f"data.path={session}", *SESSION, "data.static_intervals=false"])
+    with pytest.raises(SfmnetError, match=rf"^line {last_line} of .*session.csv gives only some of fx, fy, fz"):
+        train(cfg, tmp_path / "run")

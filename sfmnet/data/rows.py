@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
@@ -86,15 +87,14 @@ class RowData:
     shift: torch.Tensor
     load_columns: list[str] = field(default_factory=list)
     load_index: list[int] = field(default_factory=list)
-    # The user's file, for messages: a CSV's rows lie in a converted .npy (``layout.path``).
-    source: Path | None = None
+    # Where a row is in the user's file, for messages (the reader's: a CSV's rows lie in a converted .npy).
+    place: Callable[[int], str] | None = None
 
     recording = "rows"
 
-    @property
-    def file(self) -> Path:
-        """The file the user gave (the ``.npy`` itself, or the CSV it was converted from)."""
-        return self.source or self.layout.path
+    def row_place(self, row: int) -> str:
+        """Data row ``row`` (0-based) as the user finds it: ``line 17 of x.csv``, or ``data row 15 (0-based) of x.npy``."""
+        return self.place(row) if self.place is not None else f"data row {row} (0-based) of {self.layout.path}"
 
     @property
     def rows(self) -> int:
@@ -121,7 +121,7 @@ class RowData:
         row = self.first_bad_row()
         if row is not None:
             raise SfmnetError(
-                f"{self.file} data row {row} (0-based) has a NaN, empty or infinite channel cell, or one beyond "
+                f"{self.row_place(row)} has a NaN, empty or infinite channel cell, or one beyond "
                 f"{IMPLAUSIBLE:.0e} (a corrupt cell or a unit slip): repair or drop that row"
             )
 

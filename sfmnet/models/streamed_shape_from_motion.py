@@ -241,7 +241,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         data.require_plausible(moments)
         if self.first_partial_row < data.rows:
             raise SfmnetError(
-                f"{data.file} data row {self.first_partial_row} (0-based) gives only some of "
+                f"{data.row_place(self.first_partial_row)} gives only some of "
                 f"{', '.join(data.load_columns)}: fill every load column on a known row, or none"
             )
         needed = metric_unknowns(n, self.estimate_offset)
@@ -270,7 +270,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         off = first_magnitude_mismatch(forces.numpy(), magnitudes, self.data.known_load_tolerance)
         if off is not None:
             raise SfmnetError(
-                f"the known load on data row {int(self.known[off, 0])} (0-based) of {self.data.file} has magnitude "
+                f"the known load on {self.data.row_place(int(self.known[off, 0]))} has magnitude "
                 f"{float(forces[off].norm()):.6g} but data.magnitude is {self.data.magnitude:.6g} "
                 f"({100 * self.data.known_load_tolerance:g} % allowed): the known loads must be the calibration mass; "
                 "check the load columns, units and mass"

@@ -175,7 +175,7 @@ class RowFileDataModule(L.LightningDataModule):
             )
         return data_class(
             layout=layout, channels=list(channels), channel_index=index, shift=torch.from_numpy(first.mean(axis=0)),
-            source=self.path, **extra,
+            place=self.row_place, **extra,
         )
 
     def row_place(self, row: int) -> str:
