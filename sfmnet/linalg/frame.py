@@ -117,10 +117,12 @@ def check_agreement(placed: torch.Tensor, known_loads: torch.Tensor, rotation: t
     angles = torch.rad2deg(torch.arccos(cosine.clamp(-1.0, 1.0)))
     worst = int(angles.argmax())
     if float(angles[worst]) > MAX_DISAGREEMENT_DEG:
+        size = float(placed[worst].norm() / known_loads[worst].norm())
         raise SfmnetError(
             f"known load {worst + 1} of {len(known_loads)} lies {float(angles[worst]):.0f} degrees from where the readings "
-            "put it relative to the other known loads: the known loads contradict each other; check their columns, "
-            "signs and rows"
+            f"put it (at {100 * size:.0f} % of its size) relative to the other known loads: the known loads contradict "
+            "each other, or their rows' readings are too noisy to place them (far from 100 % says so); check their "
+            "columns, signs and rows"
         )
     return rotation
 
