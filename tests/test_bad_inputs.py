@@ -505,6 +505,9 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     ),
     "rows: FIFO as data.path": (lambda t: (lambda: RowFileDataModule(str(fifo(t, "rows.csv"))).setup()), r"is a FIFO \(named pipe\), not a regular file"),
     "rows: non-numeric CSV cell": (lambda t: row_file(t, "rows.csv", "a,b\n1,2\n3,x\n"), r"line 3 has a non-numeric cell"),
+    "rows: a whitespace table": (
+        lambda t: row_file(t, "rows.txt", "a b\n1 2\n3 4\n"), r"rows.txt is a .txt table, which is read whole: a streamed run reads a .csv or a .npy"
+    ),
     "rows: not a matrix": (lambda t: row_file(t, "rows.npy", np.arange(5.0)), r"holds an array of shape \(5,\): save a C-order 2-D array"),
     "rows: rank above the columns": (pca_rank, r"model.rank is 7 but the file has 4 columns: choose 1 to 4"),
     # Past the first rows (SHIFT_ROWS) a cell is seen only in the sums: 1e30 squared is still finite.

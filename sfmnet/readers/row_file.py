@@ -26,7 +26,7 @@ from sfmnet.errors import SfmnetError
 from sfmnet.io import temporary_beside
 from sfmnet.readers.delimited import DelimitedFile, decimal_comma_hint, open_delimited
 from sfmnet.readers.input_file import check_input_file
-from sfmnet.readers.table_file import missing_column
+from sfmnet.readers.table_file import WHITESPACE_SUFFIXES, missing_column
 
 
 class BlockDataset(Dataset):
@@ -141,6 +141,11 @@ class RowFileDataModule(L.LightningDataModule):
     def open_rows(self) -> tuple[NpyLayout, list[str]]:
         """The file's layout and its column names (a CSV converted to ``.npy`` first)."""
         check_input_file(self.path, "data.path", "a .npy or .csv of rows")
+        if self.path.suffix in WHITESPACE_SUFFIXES:
+            raise SfmnetError(
+                f"{self.path} is a {self.path.suffix} table, which is read whole: a streamed run reads a .csv or a .npy "
+                "block by block; save the rows as .npy (np.save) or .csv, or calibrate in memory (experiment=calibrate_csv)"
+            )
         source = self.path if self.path.suffix == ".npy" else csv_to_npy(self.path, self.cache_dir)
         try:
             layout = npy_layout(source)
