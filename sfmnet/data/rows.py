@@ -114,16 +114,19 @@ class RowData:
                 return start + int(np.argmax(bad))
         return None
 
-    def require_plausible(self, moments: Moments) -> None:
-        """Refuse, naming its row, a NaN, infinite or implausible cell, which poisons the sums ``moments`` (scans on suspicion only)."""
-        if bool(torch.isfinite(moments.cross).all()) and float(moments.cross.diagonal().max()) <= IMPLAUSIBLE**2:
-            return
+    def refuse_bad_rows(self) -> None:
+        """Refuse the first NaN, empty, infinite or implausible channel cell, naming its row (a scan of the file)."""
         row = self.first_bad_row()
         if row is not None:
             raise SfmnetError(
                 f"{self.row_place(row)} has a NaN, empty or infinite channel cell, or one beyond "
                 f"{IMPLAUSIBLE:.0e} (a corrupt cell or a unit slip): repair or drop that row"
             )
+
+    def require_plausible(self, moments: Moments) -> None:
+        """:meth:`refuse_bad_rows` where such a cell shows in the sums ``moments`` it poisons (the scan on suspicion only)."""
+        if not bool(torch.isfinite(moments.cross).all()) or float(moments.cross.diagonal().max()) > IMPLAUSIBLE**2:
+            self.refuse_bad_rows()
 
 
 @dataclass

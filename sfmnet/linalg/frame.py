@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 
 import torch
@@ -89,16 +88,17 @@ def frame_rotation(
     flip = torch.eye(n, dtype=rotation.dtype)
     flip[-1, -1] = -1
     mirrored = u @ flip @ vt
-    signed = [hint.sign * float((hint_motion @ image)[0, hint.axis]) for image in (rotation, mirrored)]
-    if (signed[0] > 0) == (signed[1] > 0):
+    components = [float((hint_motion @ image)[0, hint.axis]) for image in (rotation, mirrored)]
+    agrees = [component * hint.sign > 0 for component in components]
+    if agrees[0] == agrees[1]:
         normal = ", ".join(f"{value:.2f}" for value in vt[-1].tolist())
         raise SfmnetError(
-            f"the mirror hint cannot pick the mirror image: its row's load has sign {hint.sign * math.copysign(1, signed[0]):+.0f} "
-            f"on axis {hint.axis} (0-based) in both images ({hint.sign * signed[0]:.3g} and {hint.sign * signed[1]:.3g}): hint a row "
+            f"the mirror hint cannot pick the mirror image: its row's load has sign {math.copysign(1, components[0]):+.0f} "
+            f"on axis {hint.axis} (0-based) in both images ({components[0]:.3g} and {components[1]:.3g}): hint a row "
             f"whose load points well out of the known loads' span, on the axis it points along most (the direction they "
             f"leave free is ({normal})), or give {n} known loads spanning every axis"
         )
-    rotation = rotation if signed[0] > 0 else mirrored
+    rotation = rotation if agrees[0] else mirrored
     return check_agreement(estimated_loads @ rotation, known_loads, rotation)
 
 

@@ -213,7 +213,7 @@ class SerialScan:
         return seconds
 
 
-def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Callable[[int], str] = data_row) -> SerialScan:
+def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Callable[[int], str]) -> SerialScan:
     """The serial ratio (consecutive steps against the spread), the median time step, the smallest
     nonzero step of each channel (its quantisation) and a thinned preview, in one pass."""
     f, p = readings.shape

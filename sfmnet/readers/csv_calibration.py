@@ -115,8 +115,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 f"{len(channels)} channel columns for {len(self.axes)} load axes: a calibration needs at "
                 "least as many channels as axes; list them with data.channel_columns=[...]"
             )
-        empty = [name for name in channels if name in table.columns and np.isnan(table.columns[name]).all()]
-        if empty and not self.channel_columns:
+        empty = [] if self.channel_columns else [n for n in channels if n in table.columns and np.isnan(table.columns[n]).all()]
+        if empty:
             raise SfmnetError(
                 f"{'columns' if len(empty) > 1 else 'column'} {', '.join(empty)} of {self.path} "
                 f"{'are' if len(empty) > 1 else 'is'} empty on every row, so not a channel: list the channels "
@@ -144,10 +144,10 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         detection, keep = None, np.ones(len(readings), dtype=bool)
         if self.static is not None:
             time = table.numeric([self.time_column], "time")[:, 0] * self.static.time_scale if self.time_column else None
-            detection = self.static.detect(readings, time, lambda row: f"{table.row_place(row)} of {self.path}")
+            detection = self.static.detect(readings, time, table.where)
             known = np.nonzero(~np.isnan(loads).any(axis=1))[0]
             keep = fitted_rows(
-                detection, known, len(self.axes), lambda row: f"{table.row_place(row)} of {self.path}",
+                detection, known, len(self.axes), table.where,
                 check_count=not self.configuration_column,
             )
             if groups is None and not detection.independent:
@@ -208,7 +208,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         if off is not None:
             source = "its configuration's mass gives" if self.configuration_column else "data.magnitude is"
             raise SfmnetError(
-                f"the known load on {table.row_place(int(known[off]))} of {self.path} has magnitude "
+                f"the known load on {table.where(int(known[off]))} has magnitude "
                 f"{np.linalg.norm(forces[known[off]]):.6g} but {source} {magnitudes[known[off]]:.6g} "
                 f"({100 * self.known_load_tolerance:g} % allowed): the known loads must be the calibration mass; "
                 "check the load columns, units and masses"

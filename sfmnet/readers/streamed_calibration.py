@@ -8,7 +8,6 @@ import torch
 
 from sfmnet.readers.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields, monotonic_channel_warnings
 from sfmnet.data.recording import CalibrationData
-from sfmnet.data.rows import IMPLAUSIBLE
 from sfmnet.readers.row_file import RowFileDataModule, column_index
 from sfmnet.data.rows import SHIFT_ROWS, NpyLayout, StreamedRecording, mapped_rows
 from sfmnet.readers.static_rows import fitted_rows, static_settings
@@ -116,12 +115,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
 
     def find_static_rows(self, recording: StreamedRecording, names: list[str]) -> StaticIntervals:
         """Detect the static intervals chunk by chunk and set ``recording.keep`` (unless the rows are independent poses)."""
-        bad = recording.first_bad_row()
-        if bad is not None:
-            raise SfmnetError(
-                f"{self.row_place(bad)} has a NaN, empty or infinite channel cell, or one beyond {IMPLAUSIBLE:.0e} "
-                "(a corrupt cell or a unit slip): repair or drop that row"
-            )
+        recording.refuse_bad_rows()
         layout = recording.layout
         time = None
         if self.time_column:

@@ -50,6 +50,10 @@ class Table:
         """Where data row ``row`` (0-based) is, in the words a user finds it by: ``line 17``, or ``data row 15 (0-based)``."""
         return f"line {int(self.lines[row])}" if self.lines is not None else f"data row {row} (0-based)"
 
+    def where(self, row: int) -> str:
+        """:meth:`row_place` and the file: ``line 17 of session.csv``."""
+        return f"{self.row_place(row)} of {self.path}"
+
     def require(self, names: list[str], role: str) -> None:
         """Raise a clear error naming each missing column and its closest match."""
         for name in names:
@@ -136,29 +140,31 @@ WHITESPACE_SUFFIXES = (".txt", ".dat")
 
 
 def _read_whitespace(path: Path, columns: list[str] | None) -> Table:
-    """A numeric table separated by spaces or tabs; named by ``columns``, else by its first line."""
+    """A numeric table separated by spaces or tabs; named by ``columns``, else by its first line.
+
+    Blank lines and ``#`` comments are skipped, as ``np.loadtxt`` does; each row keeps its file line.
+    """
+    with path.open(encoding="utf-8-sig") as stream:
+        rows = [(number, text.split("#")[0].split()) for number, text in enumerate(stream, 1) if text.split("#")[0].strip()]
     header = None
     if not columns:
-        with path.open(encoding="utf-8-sig") as stream:
-            header = stream.readline().split()
+        header = rows.pop(0)[1] if rows else []
     if header and all(_is_number(name) for name in header):
         raise SfmnetError(
             f"{path} has no header row (its first line is numbers): name its {len(header)} columns with data.columns=[...]"
         )
-    # The lines loadtxt reads: not blank, not only a '#' comment, after the header.
-    with path.open(encoding="utf-8-sig") as stream:
-        rows = [(number, text.split("#")[0].split()) for number, text in enumerate(stream, 1) if text.split("#")[0].strip()]
-    rows = rows[0 if columns else 1 :]
     width = len(columns or header)
+    values = []
     for number, cells in rows:
         if len(cells) != width:
             raise SfmnetError(f"{path} line {number} has {len(cells)} values but the table has {width} columns")
-        refused = next((cell for cell in cells if not _is_number(cell)), None)
-        if refused is not None:
-            raise SfmnetError(f"{path} line {number} has a non-numeric value ('{refused}'): a .txt or .dat table holds numbers only")
-    array = np.loadtxt(path, ndmin=2, skiprows=0 if columns else 1, dtype=np.float64, encoding="utf-8-sig")
-    table = _from_array(path, array, columns or header)
-    return replace(table, lines=np.array([number for number, _ in rows])) if len(rows) == len(array) else table
+        try:
+            values.append([float(cell) for cell in cells])
+        except ValueError:
+            refused = next(cell for cell in cells if not _is_number(cell))
+            raise SfmnetError(f"{path} line {number} has a non-numeric value ('{refused}'): a .txt or .dat table holds numbers only") from None
+    array = np.array(values, dtype=np.float64).reshape(len(rows), width)
+    return replace(_from_array(path, array, columns or header), lines=np.array([number for number, _ in rows]))
 
 
 def _is_number(text: str) -> bool:
