@@ -20,7 +20,7 @@ closed form, the alternation, the marginal likelihood and auto against the bound
 auto's error bars (fraction of calibration-matrix entries within one reported standard error of the
 truth, the frame aligned). Trials run in ``--processes`` processes of one thread each:
 
-    python bench/crb_ratio.py --laws --trials 50 --processes 2
+    python bench/crb_ratio.py --laws --trials 50 --processes 2 [--learnt-law harmonic] [--only 3:yes:band:20 ...]
 
 ``--law-bounds``: the bound above treats each sample's direction as an unknown parameter. When the
 directions are draws from a law the estimator knows, the data say more (a direction confined to a band
@@ -50,7 +50,7 @@ from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3
 from sfmnet.simulators.simulation import circle_arc, oriented_directions, sphere_zone
 from sfmnet.linalg.frame import orthogonal_procrustes, skew_generators
 from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
-from sfmnet.models.shape_from_motion import ShapeFromMotion
+from sfmnet.models.shape_from_motion import LEARNT_LAWS, ShapeFromMotion
 from sfmnet.training.fitting import refine_in_process
 from sfmnet.training.learner_module import LearnerModule
 
@@ -209,7 +209,7 @@ def law_bound_table(trials: int, snrs: list[float]) -> None:
 
 def law_trial(args: tuple) -> tuple[float, ...]:
     """Squared shape errors of the closed form, alternation, marginal and auto, the bound, and auto's coverage counts."""
-    n, law, snr, offsets, seed, optimizer_cfg = args
+    n, law, snr, offsets, seed, optimizer_cfg, learnt_law = args
     torch.set_num_threads(1)
     warnings.filterwarnings("ignore")
     datamodule = law_session(n, law, snr, offsets, seed)
@@ -217,7 +217,7 @@ def law_trial(args: tuple) -> tuple[float, ...]:
     truth, noise_std, bound = per_direction_bound(datamodule, snr, offsets)
     fitted = {}
     for refinement in ("alternation", "marginal"):
-        model = ShapeFromMotion(estimate_offset=offsets, refinement=refinement)
+        model = ShapeFromMotion(estimate_offset=offsets, refinement=refinement, learnt_law=learnt_law)
         model.initialise(recording)
         closed_form = error2(model.physical_shape(), truth, align=True)
         fitted[refinement] = refine_in_process(model, recording, instantiate(optimizer_cfg), initialise=False)
@@ -233,8 +233,8 @@ def law_trial(args: tuple) -> tuple[float, ...]:
     return closed_form, *errors, errors[list(fitted).index(chooser.refinement)], bound, float(within), float(bars.numel())
 
 
-def law_table(trials: int, snrs: list[float], processes: int, optimizer_cfg) -> None:
-    """Print the ``--laws`` table as Markdown, one row at a time."""
+def law_table(trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str]) -> None:
+    """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``)."""
     import multiprocessing
 
     print("| n | offsets | law | SNR | closed form / CRB | alternation / CRB | marginal / CRB | auto / CRB | auto 68 % coverage |")
@@ -244,7 +244,9 @@ def law_table(trials: int, snrs: list[float], processes: int, optimizer_cfg) -> 
             for offsets in (False, True):
                 for law in LAWS:
                     for snr in snrs:
-                        jobs = [(n, law, snr, offsets, seed, optimizer_cfg) for seed in range(trials)]
+                        if only and f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}" not in only:
+                            continue
+                        jobs = [(n, law, snr, offsets, seed, optimizer_cfg, learnt_law) for seed in range(trials)]
                         results = torch.tensor(pool.map(law_trial, jobs))
                         *errors, bound, within, entries = results.sum(dim=0)
                         ratios = " | ".join(f"{float((e / bound).sqrt()):.2f}" for e in errors)
@@ -261,6 +263,8 @@ def main() -> None:
     parser.add_argument("--laws", action="store_true", help="the orientation-law table (see above)")
     parser.add_argument("--processes", type=int, default=1, help="trial processes for --laws (one thread each)")
     parser.add_argument("--law-bounds", action="store_true", help="the known-law bound against the per-direction one (see above)")
+    parser.add_argument("--learnt-law", default="nonparametric", choices=LEARNT_LAWS, help="the marginal's law of directions (model.learnt_law)")
+    parser.add_argument("--only", nargs="+", default=[], help="--laws rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     import logging
@@ -269,7 +273,7 @@ def main() -> None:
     torch.set_num_threads(1)
     optimizer_cfg = OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml")
     if args.laws:
-        law_table(args.trials, args.snr, args.processes, optimizer_cfg)
+        law_table(args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only)
         return
     if args.law_bounds:
         law_bound_table(args.trials, args.snr)

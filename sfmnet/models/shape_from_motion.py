@@ -21,6 +21,7 @@ from sfmnet.linalg.factorisation import (
 )
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
 from sfmnet.linalg.least_squares import least_squares_shape
+from sfmnet.linalg.orientation_law import LAW_DEGREES, fit_orientation_law, harmonic_basis
 from sfmnet.linalg.motion import constrained_motion, unit_motion
 from sfmnet.models.linear_calibrator import (
     Batch,
@@ -56,11 +57,15 @@ RUNAWAY_GROWTH = 10.0
 # over the orientation laws of bench/crb_ratio.py --laws it was 0.9-4.9x the Cramer-Rao bound at SNR 5 (and ran
 # away at SNR 2), within 1.6x at SNR 20.
 ALTERNATION_BIASED_BELOW_SNR = 10.0
-# Smoothed EM steps of the directions' distribution per training step of the marginal refinement.
+# Smoothed EM steps of the nonparametric distribution of directions per training step of the marginal refinement.
 PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
 # measured on the orientation laws of bench/crb_ratio.py --laws (SNR 2-20).
 PRIOR_SMOOTHING = 3.0
+# The marginal's distributions of directions (model.learnt_law): a free weight per grid direction
+# (smoothed EM), or a log-density of harmonics of the degree the BIC picks (README, "Error against the
+# Cramér-Rao bound": each is ahead on some orientation laws).
+LEARNT_LAWS = ("nonparametric", "harmonic")
 # The widest spacing (radians) of the marginal's direction grid.
 MARGINAL_GRID_SPACING = 0.11
 
@@ -130,8 +135,8 @@ class ShapeFromMotion(LinearCalibrator):
     - ``"penalty"``: the trainer's optimiser on the loss above with each ``u_j`` its exact argmin.
     - ``"marginal"``: the optimiser on the negative log marginal likelihood, each unknown
       direction integrated over a grid (:meth:`marginal_loss`) weighted by the distribution of
-      directions, which is learnt with the shape (smoothed EM, :meth:`update_prior`), the noise level
-      too: no per-sample parameters, so no incidental-parameter bias, and no assumed orientation law.
+      directions, which is learnt with the shape (:meth:`update_law`), the noise level too: no
+      per-sample parameters, so no incidental-parameter bias, and no assumed orientation law.
     - ``"auto"`` (default): ``"marginal"`` below ``MARGINAL_BELOW_SNR`` as estimated from the
       closed form, else ``"alternation"``.
 
@@ -141,6 +146,8 @@ class ShapeFromMotion(LinearCalibrator):
         estimate_offset: learn channel offsets (ellipsoid closed form, method §4); else tared readings.
         refinement: ``"auto"``, ``"alternation"``, ``"penalty"`` or ``"marginal"`` (see above).
         marginal_grid: directions in the marginal's grid (default 512 on a circle, 2000 on a sphere).
+        learnt_law: the marginal's distribution of directions, ``"nonparametric"`` (a smoothed
+            weight per grid direction) or ``"harmonic"`` (a log-density of degree 0-4, by the BIC).
         alternation_steps: alternation rounds per training step (full batches only).
         robust: ``"huber"`` weights each row of the alternation's least-squares step by Huber's
             rule on its residual, so a few bad rows (motion, a bump, a slipped mass) cannot pull
@@ -160,12 +167,15 @@ class ShapeFromMotion(LinearCalibrator):
         refinement: str = "auto",
         alternation_steps: int = 50,
         marginal_grid: int | None = None,
+        learnt_law: str = "nonparametric",
         robust: str | None = None,
         huber_threshold: float = 3.0,
     ) -> None:
         super().__init__(estimate_offset=estimate_offset)
         if refinement not in REFINEMENTS:
             raise SfmnetError(f"model.refinement is '{refinement}': use one of {', '.join(REFINEMENTS)}")
+        if learnt_law not in LEARNT_LAWS:
+            raise SfmnetError(f"model.learnt_law is '{learnt_law}': use one of {', '.join(LEARNT_LAWS)}")
         if robust not in ROBUST_LOSSES:
             raise SfmnetError(f"model.robust is '{robust}': use null (least squares) or huber")
         if robust and refinement not in ("auto", "alternation"):
@@ -183,8 +193,10 @@ class ShapeFromMotion(LinearCalibrator):
         self.refinement = refinement
         self.alternation_steps = alternation_steps
         self.marginal_grid = marginal_grid
+        self.learnt_law = learnt_law
         self.register_buffer("grid", None)
         self.register_buffer("log_prior", None)
+        self.law_bases: dict[int, torch.Tensor] | None = None
         self.register_parameter("log_noise", None)
         self.register_buffer("direction_maps", None)
         self.register_buffer("row_configuration", None)
@@ -291,8 +303,50 @@ class ShapeFromMotion(LinearCalibrator):
         distance2 = rows.pow(2).sum(dim=1, keepdim=True) - 2 * rows @ predictions.T + predictions.pow(2).sum(dim=1)
         return -distance2 / (2 * torch.exp(2 * self.log_noise))
 
+    def prepare_step(self, batch: Batch) -> None:
+        """Before each of the trainer's steps on ``batch``: the marginal refinement updates the directions' distribution."""
+        if self.refinement == "marginal":
+            self.update_law(batch)
+
+    @torch.no_grad()
+    def update_law(self, batch: Batch) -> None:
+        """The distribution of directions of each configuration the rows support, ``S``, ``o``, ``s`` held.
+
+        From the rows' grid likelihoods ``L_jk = N(z_j; o + u_k D_c S, s^2 I)``: ``learnt_law=
+        "nonparametric"``, a weight per grid direction (:meth:`smoothed_em_law`); ``"harmonic"``, a
+        log-density of degree 0 to 4, the degree by the BIC (:func:`fit_orientation_law`), so a uniform law
+        costs no parameters and a band is not smoothed towards uniform.
+        """
+        index, readings, loads = batch
+        centred = readings / self.reading_scale - self.offset
+        unknown = torch.isnan(loads).any(dim=1)
+        configuration = self.row_configuration[index]
+        if self.learnt_law == "harmonic" and self.law_bases is None:
+            self.law_bases = {degree: harmonic_basis(self.grid, degree) for degree in LAW_DEGREES}
+        for c in configuration[unknown].unique().tolist():
+            log_likelihood = self.grid_log_likelihood(centred[unknown & (configuration == c)], c)
+            if self.learnt_law == "harmonic":
+                self.log_prior[c], _ = fit_orientation_law(log_likelihood, self.law_bases, self.log_prior[c])
+            else:
+                self.log_prior[c] = self.smoothed_em_law(log_likelihood, c)
+
+    def smoothed_em_law(self, log_likelihood: torch.Tensor, configuration: int) -> torch.Tensor:
+        """``PRIOR_STEPS`` smoothed EM steps (Silverman et al. 1990) from the current law: log-weights, ``K``.
+
+        ``w <- K^T (w * L^T (1 / (L w))) / f_c`` with ``L`` the ``f_c x K`` grid likelihoods (each row
+        scaled by its largest entry) and ``K`` of :meth:`prior_kernel`: EM's step towards the
+        nonparametric maximum-likelihood mixing distribution, smoothed to the resolution the data support.
+        """
+        likelihood = torch.exp(log_likelihood - log_likelihood.max(dim=1, keepdim=True).values)
+        kernel = self.prior_kernel(configuration)
+        prior = self.log_prior[configuration].exp()
+        for _ in range(PRIOR_STEPS):
+            prior = kernel.T @ (prior * (likelihood.T @ (1 / (likelihood @ prior))) / len(likelihood))
+        # Grid points the data rule out keep a floor, so the log stays finite.
+        return prior.clamp_min(torch.finfo(prior.dtype).tiny).log()
+
     def prior_kernel(self, configuration: int) -> torch.Tensor:
-        """The smoothing kernel of :meth:`update_prior` between grid points, ``K x K`` (rows sum to one).
+        """The smoothing kernel of :meth:`smoothed_em_law` between grid points, ``K x K`` (rows sum to one).
 
         A von Mises-Fisher kernel ``exp(kappa u_k . u_l)``, ``kappa = 1 / h^2``, of angular width
         ``h = PRIOR_SMOOTHING * a^2`` (radians), ``a = s / rms(singular values of D_c S)`` the spread of
@@ -304,38 +358,11 @@ class ShapeFromMotion(LinearCalibrator):
         spread = float(torch.exp(self.log_noise.detach()) / singular.pow(2).mean().sqrt())
         return torch.softmax(self.grid @ self.grid.T / (PRIOR_SMOOTHING * spread**2) ** 2, dim=1)
 
-    def prepare_step(self, batch: Batch) -> None:
-        """Before each of the trainer's steps on ``batch``: the marginal refinement updates the directions' distribution."""
-        if self.refinement == "marginal":
-            self.update_prior(batch)
-
-    @torch.no_grad()
-    def update_prior(self, batch: Batch) -> None:
-        """``PRIOR_STEPS`` smoothed EM steps (Silverman et al. 1990) of the directions' distribution, ``S``, ``o``, ``s`` held.
-
-        ``w <- K^T (w * L^T (1 / (L w))) / f_c`` with ``L_jk = N(z_j; o + u_k D_c S, s^2 I)`` (each row
-        scaled by its largest entry) and ``K`` of :meth:`prior_kernel`: EM's step towards the
-        nonparametric maximum-likelihood mixing distribution, smoothed to the resolution the data support.
-        """
-        index, readings, loads = batch
-        centred = readings / self.reading_scale - self.offset
-        unknown = torch.isnan(loads).any(dim=1)
-        configuration = self.row_configuration[index]
-        for c in configuration[unknown].unique().tolist():
-            log_likelihood = self.grid_log_likelihood(centred[unknown & (configuration == c)], c)
-            likelihood = torch.exp(log_likelihood - log_likelihood.max(dim=1, keepdim=True).values)
-            kernel = self.prior_kernel(c)
-            prior = self.log_prior[c].exp()
-            for _ in range(PRIOR_STEPS):
-                prior = kernel.T @ (prior * (likelihood.T @ (1 / (likelihood @ prior))) / len(likelihood))
-            # Grid points the data rule out keep a floor, so the log stays finite.
-            self.log_prior[c] = prior.clamp_min(torch.finfo(prior.dtype).tiny).log()
-
     def marginal_loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Negative log marginal likelihood per row, each unknown direction integrated over the grid.
 
         ``-log p(z_j) = -logsumexp_k(log w_ck - |z_j - o - u_k D_c S|^2 / 2 s^2) + p log s`` (unknown rows,
-        ``w_c`` the learnt distribution of directions of configuration ``c``, :meth:`update_prior`),
+        ``w_c`` the learnt distribution of directions of configuration ``c``, :meth:`update_law`),
         ``|z_k - f_k S - o|^2 / 2 s^2 + p log s`` (known rows), constants dropped. Unlike the joint
         maximum likelihood it has no per-sample direction parameters, so no incidental-parameter bias.
         """
