@@ -88,11 +88,16 @@ def test_the_lock_is_exclusive(tmp_path: Path):
 
 
 def test_a_refused_run_gives_its_directory_back(tmp_path: Path):
-    """Refused before any result: the scaffold (.hydra, train.log, lock) goes, so the corrected command can use the
+    """Refused before any result: the scaffold (.hydra, train.log, tensorboard, lock) goes, so the corrected command can use the
     directory; a folder the user made stays, empty."""
     refused = sfmnet("experiment=calibrate_csv", f"data.path={tmp_path / 'missing.csv'}", f"hydra.run.dir={tmp_path / 'new'}")
     assert refused.returncode == 2 and "does not exist" in refused.stderr
     assert not (tmp_path / "new").exists()
+    # Refused by the model, after the logger (which FAST leaves out) has opened its TensorBoard log.
+    late = [sys.executable, "-m", "sfmnet", "train", "model.refinement=marginal", "model.marginal_grid=10", f"hydra.run.dir={tmp_path / 'late'}"]
+    refused = subprocess.run(late, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 2 and "model.marginal_grid=10" in refused.stderr
+    assert not (tmp_path / "late").exists()
     made_by_user = tmp_path / "mine"
     made_by_user.mkdir()
     claim_run_dir(made_by_user, "hydra.run.dir")

@@ -20,8 +20,9 @@ from sfmnet.errors import SfmnetError
 from sfmnet.io import check_writable_dir, write_error
 
 LOCK_NAME = ".sfmnet-lock"
-# What a run leaves before it has a result: Hydra's record of its config, its log, the lock.
-RUN_SCAFFOLD = {".hydra", "train.log", LOCK_NAME}
+# What a run leaves before it has a result: Hydra's record of its config, its log, the lock, and the
+# TensorBoard log the logger opens before the model refuses a setting.
+RUN_SCAFFOLD = {".hydra", "train.log", "tensorboard", LOCK_NAME}
 # The lock's second line when the claim made the directory (so only then is it removed with the scaffold).
 CREATED = "created"
 
@@ -74,7 +75,8 @@ def discard_refused_run(path: Path) -> None:
     if not lock.is_file() or not {entry.name for entry in path.iterdir()} <= RUN_SCAFFOLD:
         return
     created = CREATED in lock.read_text().split()
-    shutil.rmtree(path / ".hydra", ignore_errors=True)
+    for folder in (".hydra", "tensorboard"):
+        shutil.rmtree(path / folder, ignore_errors=True)
     (path / "train.log").unlink(missing_ok=True)
     lock.unlink()
     if created:
