@@ -58,11 +58,6 @@ def harmonic_basis(grid: torch.Tensor, degree: int) -> torch.Tensor:
     return math.sqrt(count) * left[:, : (degree + 1) ** 2 - 1]
 
 
-def law_log_likelihood(log_likelihood: torch.Tensor, log_weights: torch.Tensor) -> torch.Tensor:
-    """``sum_j log sum_k w_k L_jk``: the rows' log marginal likelihood under the law ``w`` (``log_likelihood`` ``f x K``, ``log_weights`` ``K``)."""
-    return torch.logsumexp(log_likelihood + log_weights, dim=1).sum()
-
-
 def fit_log_density(log_likelihood: torch.Tensor, basis: torch.Tensor, start: torch.Tensor) -> tuple[torch.Tensor, float]:
     """Maximum-likelihood ``theta`` of the law ``w = softmax(basis @ theta)`` given each row's grid likelihoods.
 
@@ -84,30 +79,35 @@ def fit_log_density(log_likelihood: torch.Tensor, basis: torch.Tensor, start: to
     """
     rows, m = len(log_likelihood), basis.shape[1]
 
-    def value(theta: torch.Tensor) -> float:
-        return float(law_log_likelihood(log_likelihood, torch.log_softmax(basis @ theta, dim=0)))
+    def evaluate(theta: torch.Tensor) -> tuple[float, torch.Tensor, torch.Tensor]:
+        """``l(theta)``, the law's log-weights and each row's posterior over the grid (one pass over ``f x K``)."""
+        log_weights = torch.log_softmax(basis @ theta, dim=0)
+        joint = log_likelihood + log_weights
+        row_evidence = torch.logsumexp(joint, dim=1, keepdim=True)
+        return float(row_evidence.sum()), log_weights, joint - row_evidence
 
-    theta, current = start, value(start)
+    theta = start
+    current, log_weights, log_posterior = evaluate(start)
     damping = 1e-8
     for _ in range(NEWTON_STEPS if m else 0):
-        log_weights = torch.log_softmax(basis @ theta, dim=0)
-        posterior = torch.softmax(log_likelihood + log_weights, dim=1)
-        weights, counts = log_weights.exp(), posterior.sum(dim=0)
+        posterior, weights = log_posterior.exp(), log_weights.exp()
+        counts = posterior.sum(dim=0)
         gradient = basis.T @ (counts - rows * weights)
         projected, weighted = posterior @ basis, weights @ basis
         curvature = (
             basis.T @ ((counts - rows * weights)[:, None] * basis) - projected.T @ projected + rows * torch.outer(weighted, weighted)
         )
-        scale = float(rows * (basis.T @ (weights[:, None] * basis)).diagonal().max())
+        scale = float(rows * (weights @ basis.pow(2)).max())
         while True:
             step = torch.linalg.solve(damping * scale * torch.eye(m, dtype=basis.dtype) - curvature, gradient)
-            trial = value(theta + step)
-            if trial >= current or damping > 1e6:
+            trial = evaluate(theta + step)
+            if trial[0] >= current or damping > 1e6:
                 break
             damping = max(10 * damping, 1e-4)
-        if trial < current:
+        if trial[0] < current:
             break
-        theta, gained, current = theta + step, trial - current, trial
+        gained = trial[0] - current
+        theta, (current, log_weights, log_posterior) = theta + step, trial
         damping /= 10
         if gained < 1e-10 * rows:
             break

@@ -275,6 +275,8 @@ class ShapeFromMotion(LinearCalibrator):
         # One distribution of directions per mass configuration, uniform to start with.
         configurations = len(self.direction_maps)
         self.log_prior = torch.full((configurations, len(self.grid)), -math.log(len(self.grid)), dtype=self.shape.dtype)
+        if self.learnt_law == "harmonic":
+            self.law_bases = {degree: harmonic_basis(self.grid, degree) for degree in LAW_DEGREES}
         self.log_noise = dense_parameter((torch.as_tensor(noise, dtype=self.shape.dtype) / self.reading_scale).log())
 
     def grid_size(self, dims: int) -> int:
@@ -321,8 +323,6 @@ class ShapeFromMotion(LinearCalibrator):
         centred = readings / self.reading_scale - self.offset
         unknown = torch.isnan(loads).any(dim=1)
         configuration = self.row_configuration[index]
-        if self.learnt_law == "harmonic" and self.law_bases is None:
-            self.law_bases = {degree: harmonic_basis(self.grid, degree) for degree in LAW_DEGREES}
         for c in configuration[unknown].unique().tolist():
             log_likelihood = self.grid_log_likelihood(centred[unknown & (configuration == c)], c)
             if self.learnt_law == "harmonic":

@@ -75,10 +75,11 @@ def discard_refused_run(path: Path) -> None:
     if not lock.is_file() or not {entry.name for entry in path.iterdir()} <= RUN_SCAFFOLD:
         return
     created = CREATED in lock.read_text().split()
-    for folder in (".hydra", "tensorboard"):
-        shutil.rmtree(path / folder, ignore_errors=True)
-    (path / "train.log").unlink(missing_ok=True)
-    lock.unlink()
+    for entry in (path / name for name in RUN_SCAFFOLD):
+        if entry.is_dir():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
     if created:
         path.rmdir()
 
