@@ -8,7 +8,8 @@ import torch
 
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.eval.goodness_of_fit import GoodnessOfFit, goodness_of_fit
-from sfmnet.linalg.uncertainty import CalibrationUncertainty
+from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
+from sfmnet.linalg.uncertainty import CalibrationUncertainty, load_error_rms
 from sfmnet.models.linear_calibrator import LinearCalibrator
 
 # Below these the data hardly supports a rank-n calibration (see README, "Diagnostics").
@@ -82,6 +83,7 @@ def calibration_diagnostics(
         matrix,
         load_unit,
         constraint_terms(model, recording),
+        osculating_valley(model, recording, uncertainty),
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
@@ -131,3 +133,33 @@ def constraint_terms(model: LinearCalibrator, recording: CalibrationRecording) -
     loads = off_space @ model.calibration_matrix().T
     off_space.addmm_(loads, model.physical_shape(), alpha=-1)
     return loads, off_space, recording.magnitude
+
+
+def osculating_valley(
+    model: LinearCalibrator, recording: CalibrationRecording, uncertainty: CalibrationUncertainty
+) -> tuple[ValleyScan, float] | None:
+    """:func:`~sfmnet.linalg.osculating_valley.valley_scan` and the RMS load error the bars predict
+    (:func:`~sfmnet.linalg.uncertainty.load_error_rms`), where the valley exists: one constant-magnitude
+    mass, offsets estimated (tared readings fix the sphere's centre), a constrained model. The scan's
+    likelihood is the joint one (each row's direction fitted) with Gaussian noise, the one the
+    alternation maximises; a marginal or robust fit maximises another, whose optimum the scan would
+    take for a valley."""
+    unknown = ~recording.known
+    if recording.direction_maps is not None or not model.constrained or not model.estimate_offset:
+        return None
+    if not model.joint_likelihood or model.robust:
+        return None
+    if int(unknown.sum()) <= recording.rank or not uncertainty.noise_std > 0:
+        return None
+    known, shape = recording.known, model.physical_shape()
+    scan = valley_scan(
+        recording.readings[unknown],
+        shape,
+        model.physical_offset(),
+        recording.magnitude,
+        uncertainty.noise_std,
+        recording.readings[known],
+        recording.loads[known],
+        model.unknown_row_weight(recording),
+    )
+    return scan, load_error_rms(shape, model.calibration_matrix(), uncertainty, recording.magnitude)

@@ -9,6 +9,9 @@ precise. Three checks catch them, each against the reading noise:
 - rows whose residual is far out (a chi-square tail, with the noise estimated robustly, so a
   minority of bad rows cannot hide themselves by inflating it);
 - the known loads against where the fitted calibration puts their readings.
+
+One more checks the error bars themselves: with offsets and directions crowded on one side, a
+calibration as likely as the fit can lie far beyond them (the osculating valley, method §5).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from dataclasses import dataclass, field
 import torch
 
 from sfmnet.linalg.group_means import group_means
+from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
 # The fit's residual noise may exceed the within-pose noise by this much before the model is
 # said not to describe the data (it is ~1 for a model that fits, whatever p and n).
 MAX_NOISE_RATIO = 1.5
@@ -31,6 +35,9 @@ MAX_CONSTRAINT_RATIO = 1.2
 MAX_POSE_MISFIT_RATIO = 2.0
 # Outliers are a problem once there are more than a handful beyond what the tail itself predicts.
 OUTLIER_ALLOWANCE = 3
+# A calibration as likely as the fit (within LIKELY_NATS, about 2 standard errors along one direction) may
+# lie this many times the RMS load error the error bars predict from it (2 if the bars were right).
+MAX_VALLEY_BARS_RATIO = 2.5
 # Known loads (pose means) may sit this many predicted standard errors from where the calibration puts
 # them (a chi-square tail of ~3e-4 for one known pose in 3 axes).
 MAX_KNOWN_LOAD_RATIO = 2.5
@@ -188,6 +195,7 @@ def goodness_of_fit(
     matrix: torch.Tensor,
     load_unit: str,
     constraint: tuple[torch.Tensor, torch.Tensor, float] | None = None,
+    valley: tuple[ValleyScan, float] | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -206,6 +214,9 @@ def goodness_of_fit(
         constraint: with more channels than axes and one constant magnitude: the unknown rows'
             least-squares loads, their readings off the load space and ``F``
             (:func:`constraint_noise_ratio`).
+        valley: with offsets and one constant magnitude, the likelihood along the osculating family
+            (:func:`~sfmnet.linalg.osculating_valley.valley_scan`) and the RMS load error (a fraction of
+            ``F``) the error bars predict (:func:`~sfmnet.linalg.uncertainty.load_error_rms`).
 
     Returns:
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
@@ -213,7 +224,10 @@ def goodness_of_fit(
         ``goodness/outliers``, ``goodness/outlier_fraction``, ``goodness/robust_noise``,
         ``goodness/known_load_rms``, ``goodness/known_load_ratio`` and ``goodness/known_load_pct``
         (the RMS as a percentage of the known loads' own RMS) (with known loads),
-        ``goodness/constraint_noise_ratio`` (with ``constraint``).
+        ``goodness/constraint_noise_ratio`` (with ``constraint``), ``goodness/valley_load_change``
+        (the largest RMS load change, a fraction of ``F``, among calibrations along the valley as likely
+        as the fit), ``goodness/valley_bars_ratio`` (that change over the RMS load error the bars
+        predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``).
     """
     p = residuals.shape[1]
     metrics: dict[str, float] = {}
@@ -250,6 +264,25 @@ def goodness_of_fit(
                 f"the rows' load magnitudes scatter {ratio:.2f}x more about the calibration magnitude than the noise "
                 "off the load space explains: the load is not one constant magnitude (a slipped or wrong mass, rows "
                 "in motion) or the sensor is not linear"
+            )
+    if valley is not None:
+        scan, predicted = valley
+        ratio = scan.likely_change / predicted if predicted > 0 else math.inf
+        metrics.update(
+            {
+                "goodness/valley_load_change": scan.likely_change,
+                "goodness/valley_bars_ratio": ratio,
+                "goodness/valley_better_nats": scan.better,
+            }
+        )
+        if ratio > MAX_VALLEY_BARS_RATIO:
+            space = "circle" if matrix.shape[0] == 2 else "sphere"
+            stopped = f"; the likeliest of them by {scan.better:.1f} nats, so the fit stopped short" if scan.better > LIKELY_NATS else ""
+            warnings.append(
+                f"calibrations whose loads differ by {100 * scan.likely_change:.0f} % explain the readings as well as this one "
+                f"(within {LIKELY_NATS} nats{stopped}), {ratio:.1f}x the error the error bars predict: the orientations cover "
+                f"too little of the {space} to fix the offsets and the shape; turn the mass through more of the {space} "
+                "or give known loads"
             )
     count = int(outliers.sum())
     metrics.update(

@@ -169,3 +169,21 @@ def calibration_uncertainty(
         offset_std=offset_var.clamp_min(0).sqrt(),
         noise_std=noise_var**0.5,
     )
+
+
+def load_error_rms(
+    shape: torch.Tensor, matrix: torch.Tensor, uncertainty: CalibrationUncertainty, magnitude: float
+) -> float:
+    """The RMS load error, a fraction of ``F``, the error bars predict over unit loads spread evenly on the sphere.
+
+    A load ``m = F u`` reads ``z = m S + o``; the calibration puts it at ``C (z - o)``, off by
+    ``dC m S - C do``. With independent entries, ``E|dC m S|^2 = (F^2 / n) sum_ij var(C_ij) |S_:j|^2``
+    (``E[u u^T] = I / n``) and ``E|C do|^2 = sum_ij C_ij^2 var(o_j)``.
+
+    Args:
+        shape: ``S``, ``n x p``; matrix: ``C``, ``n x p``; magnitude: ``F``.
+    """
+    n = shape.shape[0]
+    through_matrix = magnitude**2 / n * float((uncertainty.matrix_std.pow(2) @ shape.pow(2).sum(dim=0)).sum())
+    through_offset = float((matrix.pow(2) @ uncertainty.offset_std.pow(2)).sum())
+    return math.sqrt(through_matrix + through_offset) / magnitude

@@ -47,6 +47,8 @@ class LinearCalibrator(nn.Module, ABC):
     constrained = False
     # A robust loss that down-weights outlying rows (ShapeFromMotion's "huber"), or None.
     robust: str | None = None
+    # Whether the fit maximises the likelihood with each row's direction a parameter (not one integrated out).
+    joint_likelihood = True
 
     def __init__(self, estimate_offset: bool) -> None:
         super().__init__()
@@ -152,6 +154,10 @@ class LinearCalibrator(nn.Module, ABC):
         """
         n = recording.rank
         return recording.loads[:0], recording.loads.new_zeros(0, n, n)
+
+    def unknown_row_weight(self, recording: CalibrationRecording) -> float:
+        """How many of the fitted recording's unknown-load rows each of ``recording``'s stands for (1: all are here)."""
+        return 1.0
 
     def unknown_loads(self, recording: CalibrationRecording, unknown: UnknownRows | None = None) -> torch.Tensor:
         """The fitted loads of the rows whose load is unknown, ``f' x n``; ``unknown``: :meth:`unknown_directions`

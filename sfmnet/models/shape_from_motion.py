@@ -224,6 +224,10 @@ class ShapeFromMotion(LinearCalibrator):
     def constrained(self) -> bool:
         return self.metric_weight > 0
 
+    @property
+    def joint_likelihood(self) -> bool:
+        return self.refinement != "marginal"
+
     def fit_mode(self) -> FitMode:
         """The alternation (and ``auto`` until the data choose) refines by :meth:`alternate`; the rest by the optimiser."""
         return FitMode.ALTERNATION if self.refinement in ("alternation", "auto") else FitMode.STEPS

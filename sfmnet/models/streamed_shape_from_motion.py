@@ -400,6 +400,10 @@ class StreamedShapeFromMotion(LinearCalibrator):
         n = self.rank
         return directions, magnitude * torch.eye(n, dtype=directions.dtype).expand(len(directions), n, n)
 
+    def unknown_row_weight(self, recording: CalibrationRecording) -> float:
+        """The sample's unknown rows (:meth:`report_recording`) stand for every unknown row streamed."""
+        return (float(self.moments.count) - len(self.known)) / int((~recording.known).sum())
+
     def uncertainty(
         self, recording: CalibrationRecording, loads: torch.Tensor, unknown: UnknownRows | None = None
     ) -> CalibrationUncertainty:
@@ -409,7 +413,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         sample, scaled, after the closed form alone).
         """
         directions, maps = self.unknown_directions(recording) if unknown is None else unknown
-        weight = (float(self.moments.count) - len(self.known)) / len(directions)
+        weight = self.unknown_row_weight(recording)
         if self.passes > 2:
             residual = float(self.residual_squares.sum())
         else:
