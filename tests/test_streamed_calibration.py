@@ -150,3 +150,13 @@ def test_a_refused_row_far_in_a_streamed_csv_is_named_by_its_file_line(tmp_path:
     cfg = compose_config(["experiment=calibrate_stream", f"data.path={session}", *SESSION, "data.static_intervals=false"])
     with pytest.raises(SfmnetError, match=rf"^line {last_line} of .*session.csv gives only some of fx, fy, fz"):
         train(cfg, tmp_path / "run")
+
+
+def test_a_text_column_beside_the_listed_channels_is_not_read(session: Path, tmp_path: Path):
+    """A CSV with an operator's note column: streamed with the channels listed, the same calibration as without it."""
+    noted = tmp_path / "noted.csv"
+    write_session(noted, known_loads=2, edit=lambda rows: [row.insert(1, "note" if i == 0 else f"pose {i % 7}") for i, row in enumerate(rows)])
+    channels = "data.channel_columns=[s0,s1,s2,s3,s4,s5]"
+    plain, _ = calibrate(session, tmp_path / "plain", "calibrate_stream", "model.refinement=closed_form", channels)
+    with_note, _ = calibrate(noted, tmp_path / "noted", "calibrate_stream", "model.refinement=closed_form", channels)
+    assert with_note["matrix"] == plain["matrix"] and with_note["offset"] == plain["offset"]

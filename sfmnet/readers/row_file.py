@@ -138,6 +138,10 @@ class RowFileDataModule(L.LightningDataModule):
         layout, names = self.open_rows()
         return self.row_data(layout, names, self.channel_columns or names)
 
+    def csv_columns(self) -> list[str] | None:
+        """The CSV columns the run reads, converted alone (other columns may hold text); None: every column."""
+        return self.channel_columns
+
     def open_rows(self) -> tuple[NpyLayout, list[str]]:
         """The file's layout and its column names (a CSV converted to ``.npy`` first)."""
         check_input_file(self.path, "data.path", "a .npy or .csv of rows")
@@ -146,7 +150,8 @@ class RowFileDataModule(L.LightningDataModule):
                 f"{self.path} is a {self.path.suffix} table, which is read whole: a streamed run reads a .csv or a .npy "
                 "block by block; save the rows as .npy (np.save) or .csv, or calibrate in memory (experiment=calibrate_csv)"
             )
-        source = self.path if self.path.suffix == ".npy" else csv_to_npy(self.path, self.cache_dir)
+        kept = None if self.path.suffix == ".npy" else self.csv_columns()
+        source = self.path if self.path.suffix == ".npy" else csv_to_npy(self.path, self.cache_dir, kept)
         try:
             layout = npy_layout(source)
         except (ValueError, OSError) as error:
@@ -154,7 +159,7 @@ class RowFileDataModule(L.LightningDataModule):
         rows, p = layout.shape
         if rows < 2 or not np.issubdtype(layout.dtype, np.number):
             raise SfmnetError(f"{source} holds a {layout.dtype} array of shape {layout.shape}: give a 2-D numeric array, one row per sample")
-        names = self.columns or (csv_header(self.path) if self.path.suffix != ".npy" else [f"c{i}" for i in range(p)])
+        names = self.columns or kept or (csv_header(self.path) if self.path.suffix != ".npy" else [f"c{i}" for i in range(p)])
         if len(names) != p:
             raise SfmnetError(f"{len(names)} names in data.columns for {p} columns in {self.path}")
         return layout, list(names)
@@ -219,17 +224,20 @@ def content_key(path: Path) -> str:
     return digest.hexdigest()
 
 
-def csv_to_npy(path: Path, cache_dir: Path | None, chunk_rows: int = 100_000) -> Path:
+def csv_to_npy(path: Path, cache_dir: Path | None, columns: list[str] | None = None, chunk_rows: int = 100_000) -> Path:
     """Convert a numeric CSV (header row; empty cells NaN) to float64 ``.npy`` once; reuse it while the CSV's bytes are the same.
 
-    The conversion is written under a name of its own and renamed into place, so runs converting
-    one CSV at once never read or clobber each other's half-written file.
+    ``columns``: convert only these, in this order (the others are not parsed, so they may hold
+    text); None: every column. The conversion is written under a name of its own and renamed into
+    place, so runs converting one CSV at once never read or clobber each other's half-written file.
     """
-    cache = (cache_dir or path.parent / ".sfmnet-cache") / f"{path.stem}-{content_key(path)}.npy"
+    selection = "" if columns is None else "-" + hashlib.blake2b(",".join(columns).encode(), digest_size=8).hexdigest()
+    cache = (cache_dir or path.parent / ".sfmnet-cache") / f"{path.stem}-{content_key(path)}{selection}.npy"
     if cache.is_file():
         return cache
     source = open_delimited(path)
     header, records = source.header_and_rows()
+    index = list(range(len(header))) if columns is None else column_index(header, columns, "listed", path)
     rows = sum(1 for _ in records)
     if rows < 2:
         raise SfmnetError(f"{path} has {rows} data rows: give a CSV with a header and at least two rows")
@@ -241,8 +249,8 @@ def csv_to_npy(path: Path, cache_dir: Path | None, chunk_rows: int = 100_000) ->
         ) from None
     os.close(handle)
     try:
-        out = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.float64, shape=(rows, len(header)))
-        written = fill_rows(out, source, header, chunk_rows)
+        out = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.float64, shape=(rows, len(index)))
+        written = fill_rows(out, source, header, index, chunk_rows)
         out.flush()
         del out
         if written != rows:
@@ -254,26 +262,30 @@ def csv_to_npy(path: Path, cache_dir: Path | None, chunk_rows: int = 100_000) ->
     return cache
 
 
-def fill_rows(out: np.ndarray, source: DelimitedFile, header: list[str], chunk_rows: int) -> int:
-    """Parse the CSV's data rows into ``out``, ``chunk_rows`` at a time; returns the rows written."""
+def fill_rows(out: np.ndarray, source: DelimitedFile, header: list[str], index: list[int], chunk_rows: int) -> int:
+    """Parse the CSV's data rows' columns ``index`` into ``out``, ``chunk_rows`` at a time; returns the rows written."""
     records = source.header_and_rows()[1]
     written = 0
     while chunk := list(itertools.islice(records, chunk_rows)):
         if written + len(chunk) > len(out):
             raise SfmnetError(f"{source.path} changed while it was being converted: run again once it is written")
-        out[written : written + len(chunk)] = [row_values(source, header, line, cells) for line, cells in chunk]
+        out[written : written + len(chunk)] = [row_values(source, header, index, line, cells) for line, cells in chunk]
         written += len(chunk)
     return written
 
 
-def row_values(source: DelimitedFile, header: list[str], line: int, cells: list[str]) -> list[float]:
-    """One data row's numbers (NaN where empty); a short, long or non-numeric row is refused naming its line."""
+def row_values(source: DelimitedFile, header: list[str], index: list[int], line: int, cells: list[str]) -> list[float]:
+    """One data row's numbers in columns ``index`` (NaN where empty); a short or long row, or a non-numeric cell
+    among them, is refused naming its line."""
     source.check_width(line, cells, len(header))
-    values = [source.number(cell) for cell in cells]
+    values = [source.number(cells[column]) for column in index]
     if None in values:
-        column = values.index(None)
+        column = index[values.index(None)]
+        hint = decimal_comma_hint([cells[column]])
+        if not hint and len(index) == len(header):
+            hint = "; a column of text (notes, labels) is left unread when data.channel_columns lists the channels"
         raise SfmnetError(
             f"{source.path} line {line} has a non-numeric cell ('{cells[column]}' in column {header[column]}): "
-            f"every cell must be a number{decimal_comma_hint([cells[column]])}"
+            f"every cell must be a number{hint}"
         )
     return values

@@ -77,6 +77,13 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         self.gravity = gravity
         self.static = static_settings(static_intervals, time_column, time_unit, static)
 
+    def csv_columns(self) -> list[str] | None:
+        """With the channels listed: they, the loads and the time column (other columns may hold text)."""
+        if not self.channel_columns:
+            return None
+        wanted = [*self.channel_columns, *self.load_columns, *([self.time_column] if self.time_column else [])]
+        return list(dict.fromkeys(wanted))
+
     def build(self) -> CalibrationData:
         magnitude = calibration_magnitude(self.magnitude, self.mass, self.gravity)
         layout, names = self.open_rows()
