@@ -233,3 +233,28 @@ def test_auto_says_when_a_long_low_snr_session_is_too_big_for_the_marginal():
     model = ShapeFromMotion()
     model.initialise(small)
     assert model.refinement == "marginal" and not model.fit_warnings
+
+
+def held_poses(seed: int, poses: int, rows: int = 1200) -> CalibrationRecording:
+    """6 channels, 3 axes, offsets: ``poses`` random orientations, each held for ``rows / poses`` rows, noise 1 %."""
+    rng = np.random.default_rng(seed)
+    shape = rng.normal(size=(3, 6))
+    directions = rng.normal(size=(poses, 3))
+    directions = np.repeat(directions / np.linalg.norm(directions, axis=1, keepdims=True), rows // poses, axis=0)
+    clean = 9.81 * directions @ shape + rng.normal(size=6)
+    readings = clean + 0.01 * clean.std() * rng.normal(size=clean.shape)
+    return CalibrationRecording(readings=torch.from_numpy(readings), loads=torch.full((len(readings), 3), math.nan, dtype=torch.float64), magnitude=9.81)
+
+
+@pytest.mark.parametrize("poses", [6, 8, 12])
+def test_too_few_poses_for_the_unknowns_are_flagged_however_many_rows_repeat_them(poses: int):
+    """8 orientations give 8 equations for the 9 unknowns of a 3-axis shape with offsets: a hostile tester's session
+    of 8 poses x 250 rows came out 24x its error bars with no warning."""
+    recording = held_poses(poses, poses)
+    model = fit(recording)
+    loads = model.fitted_loads(recording)
+    _, warnings, goodness = calibration_diagnostics(model, recording, [f"c{i}" for i in range(6)], loads, model.uncertainty(recording, loads), "N")
+    flagged = any("distinct orientations (poses) for the 9 unknowns" in w for w in warnings)
+    assert flagged == (poses < 9)
+    if flagged:
+        assert not goodness.trustworthy

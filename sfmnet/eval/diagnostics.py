@@ -8,6 +8,8 @@ import torch
 
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.eval.goodness_of_fit import GoodnessOfFit, goodness_of_fit
+from sfmnet.linalg.directions import count_distinct_directions
+from sfmnet.linalg.factorisation import metric_unknowns
 from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, load_error_rms
 from sfmnet.models.linear_calibrator import LinearCalibrator
@@ -84,6 +86,7 @@ def calibration_diagnostics(
         load_unit,
         constraint_terms(model, recording),
         osculating_valley(model, recording, uncertainty),
+        distinct_poses(model, recording, loads, uncertainty.noise_std),
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
@@ -163,3 +166,31 @@ def osculating_valley(
         model.unknown_row_weight(recording),
     )
     return scan, load_error_rms(shape, model.calibration_matrix(), uncertainty, recording.magnitude)
+
+
+# Rows within this many standard deviations of a direction's noise (or this angle, radians, at most) are one pose.
+POSE_NOISE_SIGMAS = 10.0
+MAX_POSE_TOLERANCE = 0.3
+
+
+def distinct_poses(
+    model: LinearCalibrator, recording: CalibrationRecording, loads: torch.Tensor, noise_std: float
+) -> tuple[int, int] | None:
+    """How many equations of the metric constraint the rows' poses give, and how many it needs.
+
+    Rows held in one orientation repeat one equation ``|m| = F``: only distinct directions count
+    (:func:`~sfmnet.linalg.directions.count_distinct_directions`, within ``POSE_NOISE_SIGMAS`` of a
+    direction's noise ``s |C|_F sqrt((n-1)/n) / F``), and a distinct known load gives ``n``. Where
+    they number fewer than ``n(n+1)/2 (+ n)`` (:func:`~sfmnet.linalg.factorisation.metric_unknowns`)
+    the shape is not determined, however many rows repeat them. One constant-magnitude mass only.
+    """
+    if recording.direction_maps is not None or not model.constrained:
+        return None
+    n, magnitude = recording.rank, recording.magnitude
+    needed = metric_unknowns(n, model.estimate_offset)
+    known = recording.known
+    angle = noise_std * float(model.calibration_matrix().norm()) * math.sqrt((n - 1) / n) / magnitude
+    tolerance = min(POSE_NOISE_SIGMAS * angle, MAX_POSE_TOLERANCE)
+    directions = loads[~known] / loads[~known].norm(dim=1, keepdim=True)
+    known_poses = len(torch.unique(recording.loads[known], dim=0))
+    return count_distinct_directions(directions, tolerance, needed) + n * known_poses, needed

@@ -196,6 +196,7 @@ def goodness_of_fit(
     load_unit: str,
     constraint: tuple[torch.Tensor, torch.Tensor, float] | None = None,
     valley: tuple[ValleyScan, float] | None = None,
+    poses: tuple[int, int] | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -217,6 +218,8 @@ def goodness_of_fit(
         valley: with offsets and one constant magnitude, the likelihood along the osculating family
             (:func:`~sfmnet.linalg.osculating_valley.valley_scan`) and the RMS load error (a fraction of
             ``F``) the error bars predict (:func:`~sfmnet.linalg.uncertainty.load_error_rms`).
+        poses: with one constant magnitude, the equations the rows' distinct poses give (counted up
+            to the number needed) and the unknowns of the shape (:func:`~sfmnet.eval.diagnostics.distinct_poses`).
 
     Returns:
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
@@ -227,7 +230,8 @@ def goodness_of_fit(
         ``goodness/constraint_noise_ratio`` (with ``constraint``), ``goodness/valley_load_change``
         (the largest RMS load change, a fraction of ``F``, among calibrations along the valley as likely
         as the fit), ``goodness/valley_bars_ratio`` (that change over the RMS load error the bars
-        predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``).
+        predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``),
+        ``goodness/pose_equations`` (with ``poses``).
     """
     p = residuals.shape[1]
     metrics: dict[str, float] = {}
@@ -283,6 +287,15 @@ def goodness_of_fit(
                 f"(within {LIKELY_NATS} nats{stopped}), {ratio:.1f}x the error the error bars predict: the orientations cover "
                 f"too little of the {space} to fix the offsets and the shape; turn the mass through more of the {space} "
                 "or give known loads"
+            )
+    if poses is not None:
+        equations, needed = poses
+        metrics["goodness/pose_equations"] = float(equations)
+        if equations < needed:
+            warnings.append(
+                f"the rows hold only {equations} distinct orientations (poses) for the {needed} unknowns of the shape"
+                f"{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: the calibration is not "
+                f"determined by them, however many rows repeat them; record at least {needed} poses (dozens give a good calibration)"
             )
     count = int(outliers.sum())
     metrics.update(

@@ -23,3 +23,20 @@ def direction_grid(dims: int, count: int) -> torch.Tensor:
     radius = (1 - z**2).sqrt()
     azimuth = math.pi * (3 - math.sqrt(5)) * step
     return torch.stack([radius * azimuth.cos(), radius * azimuth.sin(), z], dim=1)
+
+
+def count_distinct_directions(directions: torch.Tensor, tolerance: float, enough: int) -> int:
+    """How many distinct directions (poses) the unit rows hold, counted up to ``enough``.
+
+    Greedy leader clustering: the first row no pose found so far holds (within ``tolerance``
+    radians) starts a new one. Stops at ``enough`` poses: ``f x enough^2`` work at most.
+
+    Args:
+        directions: ``f x d`` unit rows; tolerance: radians; enough: the count that suffices.
+    """
+    cosine = math.cos(tolerance)
+    leaders, remaining = directions[:0], directions
+    while len(remaining) and len(leaders) < enough:
+        leaders = torch.cat([leaders, remaining[:1]])
+        remaining = remaining[remaining @ remaining[0] < cosine]
+    return len(leaders)
