@@ -124,12 +124,17 @@ def same_load_groups(recording: CalibrationRecording) -> torch.Tensor | None:
     return torch.unique(key, dim=0, return_inverse=True)[1]
 
 
+def one_constrained_mass(model: LinearCalibrator, recording: CalibrationRecording) -> bool:
+    """Whether every unknown row is one constant-magnitude mass (no six-axis configurations) under a constrained model."""
+    return recording.direction_maps is None and model.constrained
+
+
 def constraint_terms(model: LinearCalibrator, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor, float] | None:
     """What :func:`~sfmnet.eval.goodness_of_fit.constraint_noise_ratio` needs, where it applies: more
     channels than axes, one constant magnitude, unknown-load rows, a constrained model."""
     unknown = ~recording.known
     p, n = recording.readings.shape[1], recording.rank
-    if p <= n or recording.direction_maps is not None or not model.constrained or int(unknown.sum()) <= n:
+    if p <= n or not one_constrained_mass(model, recording) or int(unknown.sum()) <= n:
         return None
     # One f x p array, made in place: a million rows' is 48 MB.
     off_space = recording.readings[unknown] - model.physical_offset()
@@ -148,7 +153,7 @@ def osculating_valley(
     alternation maximises; a marginal or robust fit maximises another, whose optimum the scan would
     take for a valley."""
     unknown = ~recording.known
-    if recording.direction_maps is not None or not model.constrained or not model.estimate_offset:
+    if not one_constrained_mass(model, recording) or not model.estimate_offset:
         return None
     if not model.joint_likelihood or model.robust:
         return None
@@ -184,7 +189,7 @@ def distinct_poses(
     they number fewer than ``n(n+1)/2 (+ n)`` (:func:`~sfmnet.linalg.factorisation.metric_unknowns`)
     the shape is not determined, however many rows repeat them. One constant-magnitude mass only.
     """
-    if recording.direction_maps is not None or not model.constrained:
+    if not one_constrained_mass(model, recording):
         return None
     n, magnitude = recording.rank, recording.magnitude
     needed = metric_unknowns(n, model.estimate_offset)

@@ -150,8 +150,10 @@ class RowFileDataModule(L.LightningDataModule):
                 f"{self.path} is a {self.path.suffix} table, which is read whole: a streamed run reads a .csv or a .npy "
                 "block by block; save the rows as .npy (np.save) or .csv, or calibrate in memory (experiment=calibrate_csv)"
             )
-        kept = None if self.path.suffix == ".npy" else self.csv_columns()
-        source = self.path if self.path.suffix == ".npy" else csv_to_npy(self.path, self.cache_dir, kept)
+        source, kept = self.path, None
+        if self.path.suffix != ".npy":
+            kept = self.csv_columns()
+            source = csv_to_npy(self.path, self.cache_dir, kept)
         try:
             layout = npy_layout(source)
         except (ValueError, OSError) as error:
