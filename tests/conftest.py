@@ -57,10 +57,11 @@ def run_dir(tmp_path: Path) -> Path:
     return path
 
 
-def write_session(path: Path, known_loads: int = 3, seed: int = 0, edit=None) -> torch.Tensor:
+def write_session(path: Path, known_loads: int = 3, seed: int = 0, edit=None, noise_fraction: float = 0.01) -> torch.Tensor:
     """A simulated 3-axis session as a CSV (time, s0..s5, fx, fy, fz); returns the true matrix."""
     datamodule = ForceSensor3DataModule(
-        magnitude=9.81, offset_scale=0.2, known_loads=known_loads, mirror_hint=False, seed=seed
+        magnitude=9.81, offset_scale=0.2, known_loads=known_loads, mirror_hint=False, seed=seed,
+        noise_fraction=noise_fraction,
     )
     datamodule.setup()
     recording = datamodule.data.recordings["rotation"]

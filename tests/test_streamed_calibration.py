@@ -135,6 +135,18 @@ def test_a_biased_or_runaway_alternation_says_so_and_disowns_its_error_bars(
     assert calibration["error_bars_trustworthy"] == (problem is None)
 
 
+@pytest.mark.parametrize(("noise_fraction", "warned"), [(0.01, False), (0.2, True)])
+def test_a_streamed_closed_form_at_low_snr_is_not_trusted(tmp_path: Path, noise_fraction: float, warned: bool):
+    """The closed form (an algebraic ellipsoid fit) is biased at low SNR as the alternation is: its noise is measured
+    off the load space (the scatter's last p - n eigenvalues), and below SNR 10 the bars are disowned."""
+    session = tmp_path / "session.csv"
+    write_session(session, known_loads=2, noise_fraction=noise_fraction)
+    calibration, _ = calibrate(session, tmp_path / "run", "calibrate_stream", "model.refinement=closed_form")
+    problems = [w for w in calibration["warnings"] if w.startswith("SNR ") and "the closed form's estimate" in w]
+    assert len(problems) == int(warned)
+    assert calibration["error_bars_trustworthy"] == (not warned)
+
+
 def test_a_refused_row_far_in_a_streamed_csv_is_named_by_its_file_line(tmp_path: Path):
     """Rows the streamed model refuses in its passes (here the last row's load given in part) are named by the
     line an editor shows, past blank lines, in the user's CSV (not the .npy the CSV was converted to)."""

@@ -84,10 +84,10 @@ def runaway_warning(growth: float, remedy: str) -> str:
     )
 
 
-def low_snr_warning(snr: float, remedy: str) -> str:
-    """The warning of an alternation fitted at ``snr`` below :data:`ALTERNATION_BIASED_BELOW_SNR`, ending with ``remedy``."""
+def low_snr_warning(snr: float, remedy: str, estimator: str = "alternation") -> str:
+    """The warning of ``estimator`` fitted at ``snr`` below :data:`ALTERNATION_BIASED_BELOW_SNR`, ending with ``remedy``."""
     return (
-        f"SNR {snr:.1f} (F |s| / noise) is below {ALTERNATION_BIASED_BELOW_SNR:g}, where the alternation's estimate is biased "
+        f"SNR {snr:.1f} (F |s| / noise) is below {ALTERNATION_BIASED_BELOW_SNR:g}, where the {estimator}'s estimate is biased "
         f"by more than its error bars (the bias grows as 1/SNR^2), so neither is to be trusted: {remedy}"
     )
 

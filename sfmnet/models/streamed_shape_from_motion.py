@@ -348,7 +348,12 @@ class StreamedShapeFromMotion(LinearCalibrator):
         return bool(self.fit_problems())
 
     def fit_problems(self) -> list[str]:
-        """Why the alternation's answer and error bars are not to be trusted: it ran away, or the SNR is too low for it."""
+        """Why the answer and error bars are not to be trusted: the alternation ran away, or the SNR is too low for
+        the alternation or the closed form."""
+        remedy = "calibrate in memory with experiment=calibrate_csv (its auto refinement avoids the bias)"
+        if self.refinement == "closed_form" and self.passes >= 2:
+            snr = self.closed_form_signal_to_noise()
+            return [low_snr_warning(snr, remedy, "closed form")] if snr < ALTERNATION_BIASED_BELOW_SNR else []
         if self.passes <= 2:
             return []
         growth = shape_growth(self.shape.detach(), self.closed_form_scale)
@@ -357,8 +362,23 @@ class StreamedShapeFromMotion(LinearCalibrator):
             return [runaway_warning(growth, remedy + "takes the marginal likelihood at low SNR) or keep model.refinement=closed_form")]
         snr = self.signal_to_noise()
         if snr < ALTERNATION_BIASED_BELOW_SNR:
-            return [low_snr_warning(snr, "calibrate in memory with experiment=calibrate_csv (its auto refinement avoids the bias)")]
+            return [low_snr_warning(snr, remedy)]
         return []
+
+    def closed_form_signal_to_noise(self) -> float:
+        """``F |s| / noise`` after the closed form alone, the noise from the readings' scatter off the load space.
+
+        The last ``p - n`` eigenvalues of the centred scatter hold noise only, ``f (p - n) sigma^2`` in all; with
+        ``p = n`` there are none and the SNR is not measured (infinite).
+        """
+        p, n = len(self.data.channels), self.rank
+        if p == n:
+            return math.inf
+        trailing = torch.linalg.eigvalsh(self.moments.centred_cross())[: p - n].clamp_min(0)
+        noise = float((trailing.sum() / (self.moments.count * (p - n))).sqrt())
+        if noise == 0:
+            return math.inf
+        return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
 
     def signal_to_noise(self) -> float:
         """``F |s| / noise`` with the last pass's residual RMS for the noise, as ``ShapeFromMotion`` judges it by."""
