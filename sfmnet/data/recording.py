@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -63,6 +64,20 @@ class CalibrationRecording:
         if self.configuration is not None:
             return self.configuration
         return torch.zeros(len(self.readings), dtype=torch.long)
+
+    def same_load_groups(self) -> torch.Tensor | None:
+        """``f`` (long): :attr:`groups` split so that each holds rows of one load, or None without groups.
+
+        One pose under another mass configuration, or with another known load, is another load; the
+        unknown rows of one group share one orientation (a static interval, a pose).
+        """
+        if self.groups is None:
+            return None
+        configuration = self.row_configuration.to(self.loads.dtype)
+        # NaN (unknown) loads compare equal to each other this way.
+        loads = torch.nan_to_num(self.loads, nan=math.inf)
+        key = torch.cat([self.groups[:, None].to(loads.dtype), configuration[:, None], loads], dim=1)
+        return torch.unique(key, dim=0, return_inverse=True)[1]
 
     def without(self, rows: torch.Tensor) -> CalibrationRecording:
         """This recording with the boolean ``f`` mask ``rows`` removed (the mirror hint dropped)."""

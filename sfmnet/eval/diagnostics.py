@@ -10,6 +10,7 @@ from sfmnet.data.recording import CalibrationRecording
 from sfmnet.eval.goodness_of_fit import GoodnessOfFit, goodness_of_fit
 from sfmnet.linalg.directions import count_distinct_directions
 from sfmnet.linalg.factorisation import metric_unknowns
+from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, load_error_rms
 from sfmnet.models.linear_calibrator import LinearCalibrator
@@ -71,7 +72,7 @@ def calibration_diagnostics(
     # An unconstrained row's load is free in all n dimensions; a constrained one has d - 1 free.
     direction_dims = recording.maps.shape[1] if model.constrained else recording.rank + 1
     known = recording.known
-    groups = same_load_groups(recording)
+    groups = recording.same_load_groups()
     goodness = goodness_of_fit(
         residuals,
         recording.readings,
@@ -112,18 +113,6 @@ def load_residuals(residuals: torch.Tensor, matrix: torch.Tensor) -> dict[str, f
     return metrics
 
 
-def same_load_groups(recording: CalibrationRecording) -> torch.Tensor | None:
-    """The recording's groups split so that each holds rows of one load: one pose under another mass
-    configuration, or with another known load, is another load (the checks compare rows of one load)."""
-    if recording.groups is None:
-        return None
-    configuration = recording.row_configuration.to(recording.loads.dtype)
-    # NaN (unknown) loads compare equal to each other this way.
-    loads = torch.nan_to_num(recording.loads, nan=math.inf)
-    key = torch.cat([recording.groups[:, None].to(loads.dtype), configuration[:, None], loads], dim=1)
-    return torch.unique(key, dim=0, return_inverse=True)[1]
-
-
 def one_constrained_mass(model: LinearCalibrator, recording: CalibrationRecording) -> bool:
     """Whether every unknown row is one constant-magnitude mass (no six-axis configurations) under a constrained model."""
     return recording.direction_maps is None and model.constrained
@@ -160,15 +149,21 @@ def osculating_valley(
     if int(unknown.sum()) <= recording.rank or not uncertainty.noise_std > 0:
         return None
     known, shape = recording.known, model.physical_shape()
+    readings, weight = recording.readings[unknown], model.unknown_row_weight(recording)
+    poses = model.unknown_poses(recording)
+    if poses is not None:
+        # A pose's rows share one direction: its likelihood is its mean's, weighted by its rows, up to a constant.
+        readings, _, counts = group_means(readings, poses)
+        weight = weight * counts.to(readings.dtype)
     scan = valley_scan(
-        recording.readings[unknown],
+        readings,
         shape,
         model.physical_offset(),
         recording.magnitude,
         uncertainty.noise_std,
         recording.readings[known],
         recording.loads[known],
-        model.unknown_row_weight(recording),
+        weight,
     )
     return scan, load_error_rms(shape, model.calibration_matrix(), uncertainty, recording.magnitude)
 

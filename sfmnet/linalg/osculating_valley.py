@@ -101,13 +101,14 @@ def negative_log_likelihood(
     offset: torch.Tensor,
     magnitude: float,
     noise_std: float,
-    weight: float = 1.0,
+    weight: float | torch.Tensor = 1.0,
 ) -> float:
-    """``(w sum_j min_{|u|=1} |z_j - o - F u S|^2 + sum_k |z_k - o - m_k S|^2) / (2 sigma^2)``: unknown rows ``j``
-    (each at its best direction), known rows ``k``; ``w`` scales a sample of the unknown rows up to all of them."""
+    """``(sum_j w_j min_{|u|=1} |z_j - o - F u S|^2 + sum_k |z_k - o - m_k S|^2) / (2 sigma^2)``: unknown rows ``j``
+    (each at its best direction), known rows ``k``; ``w`` (scalar or ``f``) is how many rows each stands for (a
+    sample of the rows, or the mean of a pose's rows, which share one direction)."""
     unknown = readings - offset
     directions = unit_motion(unknown, magnitude * shape)
-    squares = weight * (unknown - magnitude * directions @ shape).pow(2).sum()
+    squares = (weight * (unknown - magnitude * directions @ shape).pow(2).sum(dim=1)).sum()
     squares = squares + (known_readings - offset - known_loads @ shape).pow(2).sum()
     return float(squares) / (2 * noise_std**2)
 
@@ -120,7 +121,7 @@ def valley_scan(
     noise_std: float,
     known_readings: torch.Tensor,
     known_loads: torch.Tensor,
-    weight: float = 1.0,
+    weight: float | torch.Tensor = 1.0,
 ) -> ValleyScan:
     """The likelihood along the osculating family (V1) of a fitted calibration.
 
@@ -134,16 +135,19 @@ def valley_scan(
         readings: ``f x p`` unknown-load rows (raw units); shape: ``S``, ``n x p``; offset: ``o``, ``p``.
         magnitude: ``F``; noise_std: ``sigma`` per channel (raw units).
         known_readings: ``k x p``; known_loads: ``k x n`` (``k`` may be 0).
-        weight: how many unknown-load rows each of ``readings`` stands for (a streamed fit's sample).
+        weight: how many unknown-load rows each of ``readings`` stands for (a streamed fit's sample), or ``f``
+            (the rows are the means of poses whose rows share one direction, each weighted by its row count).
 
     Returns:
         A :class:`ValleyScan` over (part of) ``|log l| <= log VALLEY_SPAN``.
     """
+    weight = torch.broadcast_to(torch.as_tensor(weight, dtype=readings.dtype), (len(readings),))
     if len(readings) > VALLEY_SAMPLE_ROWS:
-        weight *= len(readings) / VALLEY_SAMPLE_ROWS
-        readings = readings[torch.linspace(0, len(readings) - 1, VALLEY_SAMPLE_ROWS).long()]
+        sample = torch.linspace(0, len(readings) - 1, VALLEY_SAMPLE_ROWS).long()
+        weight = weight[sample] * (weight.sum() / weight[sample].sum())
+        readings = readings[sample]
     loads = (readings - offset) @ torch.linalg.pinv(shape)
-    axis = loads.mean(dim=0)
+    axis = weight @ loads
     axis = axis / axis.norm()
 
     def nats(log_lateral: float, log_axial: float) -> float:

@@ -146,16 +146,23 @@ def calibration_uncertainty(
     residual_sum_of_squares: float,
     observations: int,
     unknown_weight: float = 1.0,
+    free_directions: int | None = None,
 ) -> CalibrationUncertainty:
     """Cramer-Rao standard errors of the calibration matrix ``C = pinv(S)^T`` and the offsets.
 
     The noise variance is ``RSS / (observations - parameters)``; the matrix covariance is
     the bound on ``S`` carried through the Jacobian of ``pinv(S)^T``. ``unknown_weight``: see
     :func:`shape_information` (``RSS`` and ``observations`` then of the whole recording).
+    ``free_directions``: how many directions the fit solved for (each ``d - 1`` parameters), when rows
+    share them (tied poses); None: one per unknown row. Rows sharing a true direction carry the same
+    information whether their directions are tied or not (the nuisance direction removes the same
+    subspace from each row's), so only the parameter count changes.
     """
     n, p = shape.shape
     information = shape_information(shape, known_motion, unknown_directions, unknown_maps, estimate_offset, unknown_weight)
-    parameters = information.shape[0] + unknown_weight * len(unknown_directions) * (unknown_directions.shape[1] - 1)
+    if free_directions is None:
+        free_directions = unknown_weight * len(unknown_directions)
+    parameters = information.shape[0] + free_directions * (unknown_directions.shape[1] - 1)
     noise_var = residual_sum_of_squares / max(observations - parameters, 1)
     # The frame's rotation gauge (no known loads) is null only up to rounding, which grows with the
     # row count: a default relative cut (~1e-15) can invert that rounding into a huge variance.

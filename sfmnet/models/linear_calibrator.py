@@ -155,6 +155,11 @@ class LinearCalibrator(nn.Module, ABC):
         n = recording.rank
         return recording.loads[:0], recording.loads.new_zeros(0, n, n)
 
+    def unknown_poses(self, recording: CalibrationRecording) -> torch.Tensor | None:
+        """``f'`` (long): the pose of each unknown-load row where the fit gives a pose's rows one direction; None:
+        each row its own."""
+        return None
+
     def unknown_row_weight(self, recording: CalibrationRecording) -> float:
         """How many of the fitted recording's unknown-load rows each of ``recording``'s stands for (1: all are here)."""
         return 1.0
@@ -182,6 +187,7 @@ class LinearCalibrator(nn.Module, ABC):
         ``unknown``: :meth:`unknown_directions` already computed (each solves every row's direction again)."""
         residual = self.fitted_residuals(recording, loads)
         directions, maps = self.unknown_directions(recording) if unknown is None else unknown
+        poses = self.unknown_poses(recording)
         return calibration_uncertainty(
             self.physical_shape(),
             loads[recording.known],
@@ -190,6 +196,7 @@ class LinearCalibrator(nn.Module, ABC):
             self.estimate_offset,
             residual_sum_of_squares=float(torch.linalg.vector_norm(residual)) ** 2,
             observations=residual.numel(),
+            free_directions=None if poses is None else len(poses.unique()),
         )
 
     def residual_rms(self, recording: CalibrationRecording, loads: torch.Tensor | None = None) -> float:

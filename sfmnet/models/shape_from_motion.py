@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import torch
@@ -20,6 +21,7 @@ from sfmnet.linalg.factorisation import (
     truncated_svd_factors,
 )
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
+from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.least_squares import least_squares_shape
 from sfmnet.linalg.orientation_law import LAW_DEGREES, fit_orientation_law, harmonic_basis
 from sfmnet.linalg.motion import constrained_motion, unit_motion
@@ -68,6 +70,19 @@ PRIOR_SMOOTHING = 3.0
 LEARNT_LAWS = ("nonparametric", "harmonic")
 # The widest spacing (radians) of the marginal's direction grid.
 MARGINAL_GRID_SPACING = 0.11
+# With tied directions the marginal learns its law from one mean per pose, so the law becomes a spike per pose on
+# the grid, and each pose is snapped to a grid point unless its direction's spread (1 / direction SNR, radians)
+# reaches this many grid spacings: "auto" takes the alternation (whose bias then goes with the few poses, not the
+# many rows) above that. Measured on the 12 poses x 17 samples of bench/crb_ratio.py --laws, 3 axes: at direction
+# SNR 20.6 (spread 2.8 degrees, spacing 4.5) the tied marginal was 1.28x the bound and the tied alternation 0.97x.
+TIED_SPREAD_PER_SPACING = 1.0
+
+
+def grid_spacing(dims: int, count: int) -> float:
+    """Radians between neighbours of ``count`` directions spread evenly on the circle (``dims`` 2) or sphere (3):
+    ``(area / count)^(1 / (dims - 1))``."""
+    area = 2 * math.pi if dims == 2 else 4 * math.pi
+    return (area / count) ** (1 / (dims - 1))
 
 
 def shape_growth(shape: torch.Tensor, closed_form_scale: float) -> float:
@@ -94,12 +109,13 @@ def low_snr_warning(snr: float, remedy: str, estimator: str = "alternation") -> 
 
 class ScaledBatch(NamedTuple):
     """A batch in the parameters' units: readings (``b x p``), loads (``b x n``, NaN where unknown), the
-    unknown-row mask and each row's mass configuration (``b``, long)."""
+    unknown-row mask, each row's mass configuration and, with tied directions, its pose (``b``, long; else None)."""
 
     readings: torch.Tensor
     loads: torch.Tensor
     unknown: torch.Tensor
     configuration: torch.Tensor
+    pose: torch.Tensor | None = None
 
 
 class ShapeFromMotion(LinearCalibrator):
@@ -154,6 +170,12 @@ class ShapeFromMotion(LinearCalibrator):
             the shape; None: plain least squares. Needs the alternation (``auto`` then takes it).
         huber_threshold: rows whose residual norm exceeds this many times the median row's are
             down-weighted in proportion (weight ``threshold * median / |r_j|``).
+        tie_directions: where the recording has groups of rows in one orientation (static intervals, or
+            ``data.group_column``'s poses; :meth:`CalibrationRecording.same_load_groups`), each group's rows
+            share one direction: the alternation's and the marginal's per-direction terms are those of the
+            group's mean reading, weighted by its row count (method §5, "tied directions"). Far fewer
+            incidental directions, so far less bias at low SNR. Not with ``robust`` (a bad row would pull
+            its pose's direction).
     """
 
     name = "shape_from_motion"
@@ -170,6 +192,7 @@ class ShapeFromMotion(LinearCalibrator):
         learnt_law: str = "nonparametric",
         robust: str | None = None,
         huber_threshold: float = 3.0,
+        tie_directions: bool = True,
     ) -> None:
         super().__init__(estimate_offset=estimate_offset)
         if refinement not in REFINEMENTS:
@@ -194,12 +217,15 @@ class ShapeFromMotion(LinearCalibrator):
         self.alternation_steps = alternation_steps
         self.marginal_grid = marginal_grid
         self.learnt_law = learnt_law
+        self.tie_directions = tie_directions
         self.register_buffer("grid", None)
         self.register_buffer("log_prior", None)
         self.law_bases: dict[int, torch.Tensor] | None = None
         self.register_parameter("log_noise", None)
         self.register_buffer("direction_maps", None)
         self.register_buffer("row_configuration", None)
+        self.register_buffer("row_pose", None)
+        self.rows_per_direction = 1.0
 
     @property
     def fit_failed(self) -> bool:
@@ -216,8 +242,8 @@ class ShapeFromMotion(LinearCalibrator):
         growth = shape_growth(self.shape.detach(), self.closed_form_scale)
         if growth > RUNAWAY_GROWTH:
             return [runaway_warning(growth, "use model.refinement=marginal (or auto)")]
-        if self.constrained and self.snr < ALTERNATION_BIASED_BELOW_SNR:
-            return [low_snr_warning(self.snr, "set model.refinement=marginal")]
+        if self.constrained and self.direction_snr < ALTERNATION_BIASED_BELOW_SNR:
+            return [low_snr_warning(self.direction_snr, "set model.refinement=marginal")]
         return []
 
     @property
@@ -250,21 +276,49 @@ class ShapeFromMotion(LinearCalibrator):
         self.orient(recording)
         self.closed_form_scale = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2))
         if self.constrained:
+            self.tie_poses(recording)
             noise = self.closed_form_noise(recording)
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":
-            marginal = self.constrained and self.snr < MARGINAL_BELOW_SNR and not self.robust
-            rows = len(recording.readings)
+            marginal = self.constrained and self.direction_snr < self.marginal_below_snr() and not self.robust
+            rows = round(len(recording.readings) / self.rows_per_direction)
             if marginal and rows * self.grid_size(self.direction_maps.shape[1]) > MARGINAL_MAX_CELLS:
                 marginal = False
                 self.notes.append(
-                    f"SNR {self.snr:.0f} is low enough for the marginal refinement, but on {rows:,} rows it would take "
+                    f"SNR {self.direction_snr:.0f} is low enough for the marginal refinement, but on {rows:,} "
+                    f"{'poses' if self.tied else 'rows'} it would take "
                     "long: the alternation was used, whose bias grows as 1/SNR^2; set model.refinement=marginal to "
                     "insist, or fit pose means"
                 )
             self.refinement = "marginal" if marginal else "alternation"
         if self.refinement == "marginal":
             self.start_marginal(noise)
+
+    def tie_poses(self, recording: CalibrationRecording) -> None:
+        """Each row's pose (:attr:`row_pose`) where the directions are tied, and the unknown rows per direction."""
+        poses = recording.same_load_groups() if self.tie_directions and not self.robust else None
+        unknown = ~recording.known
+        self.row_pose = poses
+        if poses is not None and bool(unknown.any()):
+            self.rows_per_direction = int(unknown.sum()) / len(poses[unknown].unique())
+
+    @property
+    def tied(self) -> bool:
+        return self.row_pose is not None
+
+    def marginal_below_snr(self) -> float:
+        """The direction SNR below which ``auto`` takes the marginal: :data:`MARGINAL_BELOW_SNR`, and with tied
+        directions no more than one direction's spread per grid spacing (:data:`TIED_SPREAD_PER_SPACING`)."""
+        if not self.tied:
+            return MARGINAL_BELOW_SNR
+        d = self.direction_maps.shape[1]
+        return min(MARGINAL_BELOW_SNR, 1 / (TIED_SPREAD_PER_SPACING * grid_spacing(d, self.grid_size(d))))
+
+    @property
+    def direction_snr(self) -> float:
+        """The closed form's SNR (``F |s| / noise`` of one row) for one direction's data: a tied pose's mean reading
+        has ``sqrt(rows per pose)`` times a row's. The refinement's bias and the marginal's grid go by it."""
+        return self.snr * math.sqrt(self.rows_per_direction)
 
     def closed_form_noise(self, recording: CalibrationRecording) -> float:
         """RMS of the closed form's residuals, raw units: the noise its SNR (``F |s| / noise``) is judged by."""
@@ -292,13 +346,12 @@ class ShapeFromMotion(LinearCalibrator):
         """
         if self.marginal_grid is None:
             return 512 if dims == 2 else 2000
-        area = 2 * math.pi if dims == 2 else 4 * math.pi
-        if dims <= 3 and (area / self.marginal_grid) ** (1 / (dims - 1)) > MARGINAL_GRID_SPACING:
-            least = math.ceil(area / MARGINAL_GRID_SPACING ** (dims - 1))
+        if dims <= 3 and grid_spacing(dims, self.marginal_grid) > MARGINAL_GRID_SPACING:
+            least = math.ceil(grid_spacing(dims, 1) ** (dims - 1) / MARGINAL_GRID_SPACING ** (dims - 1))
             shape = "circle" if dims == 2 else "sphere"
             raise SfmnetError(
                 f"model.marginal_grid={self.marginal_grid} spaces the {shape}'s directions "
-                f"{math.degrees((area / self.marginal_grid) ** (1 / (dims - 1))):.1f} degrees apart: give at least {least} "
+                f"{math.degrees(grid_spacing(dims, self.marginal_grid)):.1f} degrees apart: give at least {least} "
                 f"(the marginal needs them within {math.degrees(MARGINAL_GRID_SPACING):.1f} degrees) or null"
             )
         return self.marginal_grid
@@ -326,13 +379,34 @@ class ShapeFromMotion(LinearCalibrator):
         index, readings, loads = batch
         centred = readings / self.reading_scale - self.offset
         unknown = torch.isnan(loads).any(dim=1)
-        configuration = self.row_configuration[index]
-        for c in configuration[unknown].unique().tolist():
-            log_likelihood = self.grid_log_likelihood(centred[unknown & (configuration == c)], c)
+        for c, log_likelihood, _ in self.direction_log_likelihoods(centred, unknown, index):
             if self.learnt_law == "harmonic":
                 self.log_prior[c], _ = fit_orientation_law(log_likelihood, self.law_bases, self.log_prior[c])
             else:
                 self.log_prior[c] = self.smoothed_em_law(log_likelihood, c)
+
+    def direction_log_likelihoods(
+        self, centred: torch.Tensor, unknown: torch.Tensor, index: torch.Tensor
+    ) -> Iterator[tuple[int, torch.Tensor, torch.Tensor]]:
+        """Per mass configuration ``c`` of the unknown rows: ``c``, the grid log-likelihoods of each free direction
+        (``g x K``) and the rows' squared distances from their direction's reading (a scalar).
+
+        Untied, one direction per row (:meth:`grid_log_likelihood`, distances 0). Tied, one per pose:
+        ``sum_j |z_j - mu|^2 = sum_j |z_j - z_bar|^2 + c_g |z_bar - mu|^2``, so a pose's term is its mean's
+        log-likelihood times its row count ``c_g``, and the within-pose scatter is left over.
+
+        Args:
+            centred: ``b x p`` readings minus offsets (dimensionless); unknown: ``b`` mask; index: ``b`` rows.
+        """
+        configuration = self.row_configuration[index]
+        for c in configuration[unknown].unique().tolist():
+            rows = unknown & (configuration == c)
+            if not self.tied:
+                yield c, self.grid_log_likelihood(centred[rows], c), centred.new_zeros(())
+                continue
+            means, pose, counts = group_means(centred[rows], self.row_pose[index][rows])
+            scatter = (centred[rows] - means[pose]).pow(2).sum()
+            yield c, counts[:, None].to(means.dtype) * self.grid_log_likelihood(means, c), scatter
 
     def smoothed_em_law(self, log_likelihood: torch.Tensor, configuration: int) -> torch.Tensor:
         """``PRIOR_STEPS`` smoothed EM steps (Silverman et al. 1990) from the current law: log-weights, ``K``.
@@ -354,12 +428,14 @@ class ShapeFromMotion(LinearCalibrator):
 
         A von Mises-Fisher kernel ``exp(kappa u_k . u_l)``, ``kappa = 1 / h^2``, of angular width
         ``h = PRIOR_SMOOTHING * a^2`` (radians), ``a = s / rms(singular values of D_c S)`` the spread of
-        one sample's direction. Smoothing tames the unsmoothed estimate's spikes where ``a`` is
+        one sample's direction (of a pose's mean, ``s`` over the square root of the rows per pose, when tied). Smoothing tames the unsmoothed estimate's spikes where ``a`` is
         wide (SNR ~ 2); its own bias, ``O(h^2) = O(a^4)``, stays below the incidental-parameter bias
         ``O(a^2)`` it replaces where ``a`` is narrow.
         """
         singular = torch.linalg.svdvals(self.direction_maps[configuration] @ self.shape.detach())
-        spread = float(torch.exp(self.log_noise.detach()) / singular.pow(2).mean().sqrt())
+        # A tied direction rests on its pose's mean reading, whose noise is smaller.
+        noise = torch.exp(self.log_noise.detach()) / math.sqrt(self.rows_per_direction)
+        spread = float(noise / singular.pow(2).mean().sqrt())
         return torch.softmax(self.grid @ self.grid.T / (PRIOR_SMOOTHING * spread**2) ** 2, dim=1)
 
     def marginal_loss(self, batch: Batch) -> dict[str, torch.Tensor]:
@@ -369,6 +445,7 @@ class ShapeFromMotion(LinearCalibrator):
         ``w_c`` the learnt distribution of directions of configuration ``c``, :meth:`update_law`),
         ``|z_k - f_k S - o|^2 / 2 s^2 + p log s`` (known rows), constants dropped. Unlike the joint
         maximum likelihood it has no per-sample direction parameters, so no incidental-parameter bias.
+        With tied directions one integral per pose (:meth:`direction_log_likelihoods`).
         """
         index, readings, loads = batch
         centred = readings / self.reading_scale - self.offset
@@ -378,10 +455,8 @@ class ShapeFromMotion(LinearCalibrator):
         p = centred.shape[1]
         known_residual = centred[~unknown] - loads[~unknown] @ self.shape
         total = (known_residual.pow(2).sum(dim=1) / (2 * variance)).sum()
-        configuration = self.row_configuration[index]
-        for c in configuration[unknown].unique().tolist():
-            log_likelihood = self.grid_log_likelihood(centred[unknown & (configuration == c)], c)
-            total = total - torch.logsumexp(self.log_prior[c] + log_likelihood, dim=1).sum()
+        for c, log_likelihood, scatter in self.direction_log_likelihoods(centred, unknown, index):
+            total = total + scatter / (2 * variance) - torch.logsumexp(self.log_prior[c] + log_likelihood, dim=1).sum()
         total = total + len(centred) * p * self.log_noise
         loss = total / len(centred)
         return {"marginal_nll": loss, "noise": torch.exp(self.log_noise).detach(), "loss": loss}
@@ -459,12 +534,22 @@ class ShapeFromMotion(LinearCalibrator):
         return directions
 
     def row_directions(
-        self, readings: torch.Tensor, configuration: torch.Tensor, multipliers: torch.Tensor | None = None
+        self,
+        readings: torch.Tensor,
+        configuration: torch.Tensor,
+        multipliers: torch.Tensor | None = None,
+        pose: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Unknown rows' directions as the refinement uses them: on the unit sphere (alternation) or the penalty's argmin.
 
         ``multipliers``: :func:`unit_motion`'s warm start of one mass's rows (read and overwritten), else unused.
+        ``pose``: ``b`` (long), rows of one pose share the direction of their mean reading (tied directions:
+        ``argmin_u sum_j |z_j - o - u D S|^2`` is the argmin for ``z_bar``), or None.
         """
+        if pose is not None:
+            means, index, _ = group_means(readings, pose)
+            pose_configuration = configuration.new_zeros(len(means)).scatter_(0, index, configuration)
+            return self.row_directions(means, pose_configuration)[index]
         if self.refinement == "penalty":
             return self.directions(readings, configuration, self.metric_weight)
         readings = readings - self.offset.detach()
@@ -484,18 +569,19 @@ class ShapeFromMotion(LinearCalibrator):
         """``batch`` in the parameters' units: readings over ``reading_scale``, loads over ``load_scale``."""
         index, readings, loads = batch
         configuration = self.row_configuration[index] if self.constrained else index
-        return ScaledBatch(readings / self.reading_scale, loads / self.load_scale, torch.isnan(loads).any(dim=1), configuration)
+        pose = self.row_pose[index] if self.tied else None
+        return ScaledBatch(readings / self.reading_scale, loads / self.load_scale, torch.isnan(loads).any(dim=1), configuration, pose)
 
     def scaled_motion(
         self, batch: ScaledBatch, multipliers: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """:meth:`batch_motion` of a batch already scaled; ``multipliers`` (one per row) as in :meth:`row_directions`."""
-        readings, loads, unknown, configuration = batch
+        readings, loads, unknown, configuration, pose = batch
         if self.constrained and len(self.direction_maps) == 1:
             # One mass: every row's direction at once (a known row's is discarded), no masked copies of a long
-            # recording; the few known rows are overwritten in place.
+            # recording; the few known rows are overwritten in place (a pose holds rows of one load only).
             known = ~unknown
-            directions = self.row_directions(readings, configuration, multipliers)
+            directions = self.row_directions(readings, configuration, multipliers, pose)
             directions[known] = 0.0
             motion = directions @ self.direction_maps[0]
             motion[known] = loads[known]
@@ -505,7 +591,9 @@ class ShapeFromMotion(LinearCalibrator):
             motion[unknown] = constrained_motion(readings[unknown] - self.offset.detach(), self.shape.detach(), 0.0)
             return readings, motion, readings.new_zeros(len(readings), self.rank), unknown
         directions = readings.new_zeros(len(readings), self.direction_maps.shape[1])
-        directions[unknown] = self.row_directions(readings[unknown], configuration[unknown])
+        directions[unknown] = self.row_directions(
+            readings[unknown], configuration[unknown], pose=None if pose is None else pose[unknown]
+        )
         for c in configuration[unknown].unique().tolist():
             rows = unknown & (configuration == c)
             motion[rows] = directions[rows] @ self.direction_maps[c]
@@ -594,11 +682,17 @@ class ShapeFromMotion(LinearCalibrator):
             return loads, torch.eye(n, dtype=loads.dtype).expand(len(loads), n, n)
         configuration = recording.row_configuration[unknown]
         # The refinement's own direction estimates, so residuals and error bars describe its fixed point.
-        directions = self.row_directions(recording.readings[unknown] / self.reading_scale, configuration)
+        directions = self.row_directions(
+            recording.readings[unknown] / self.reading_scale, configuration, pose=self.unknown_poses(recording)
+        )
         maps = recording.maps
         # One mass: one map seen by every row (a view; a million rows' own copies would be 72 MB).
         row_maps = maps.expand(len(directions), -1, -1) if len(maps) == 1 else maps[configuration]
         return directions / directions.norm(dim=1, keepdim=True), row_maps
+
+    def unknown_poses(self, recording: CalibrationRecording) -> torch.Tensor | None:
+        poses = recording.same_load_groups() if self.tied else None
+        return None if poses is None else poses[~recording.known]
 
     @torch.no_grad()
     def orient(self, recording: CalibrationRecording) -> None:

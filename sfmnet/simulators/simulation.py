@@ -195,7 +195,8 @@ def rotation_recording(
     ``orientation_bias`` > 0 crowds the orientations towards the last axis (1: most loads
     within 60 degrees of it, from the uniform law), as when an arm cannot turn the sensor upside down.
 
-    The unknown rows come first; the known ones (axis-aligned, set on a stage) follow.
+    The unknown rows come first; the known ones (axis-aligned, set on a stage) follow. Under the
+    ``"poses"`` law each row's pose is its group (as an operator logs it), each known row its own.
     With ``mirror_hint``, the unknown sample whose load leans furthest along the last axis
     is named with the sign of that component, as an operator would remember it.
     """
@@ -215,8 +216,12 @@ def rotation_recording(
     if mirror_hint:
         row = int(unknown[:, -1].abs().argmax())
         hint = MirrorHint(sample=row, axis=n - 1, sign=1 if unknown[row, -1] > 0 else -1)
+    groups = None
+    if orientation_law == "poses":
+        pose = torch.arange(samples) // math.ceil(samples / poses)
+        groups = torch.cat([pose, poses + torch.arange(known_loads)])
     return CalibrationRecording(
-        readings=readings, loads=believed, magnitude=magnitude, mirror_hint=hint, true_loads=loads
+        readings=readings, loads=believed, magnitude=magnitude, mirror_hint=hint, true_loads=loads, groups=groups
     )
 
 

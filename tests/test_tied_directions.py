@@ -1,0 +1,79 @@
+"""Tied directions: the rows of one pose (a static interval, a logged pose) share one unknown direction."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from sfmnet.linalg.frame import orthogonal_procrustes
+from sfmnet.linalg.group_means import group_means
+from sfmnet.models.shape_from_motion import ShapeFromMotion
+from sfmnet.simulators.simulated_sensor import FingertipDataModule
+from tests.test_orientation_laws import refined
+
+
+def poses_session(noise_fraction: float, seed: int, offsets: bool = False):
+    """A 2-axis session of 12 poses x 8 samples, each row's pose in ``groups`` (as an operator logs it)."""
+    datamodule = FingertipDataModule(
+        magnitude=111.4, samples=96, known_loads=0, mirror_hint=False, noise_fraction=noise_fraction, seed=seed,
+        orientation_law="poses", offset_scale=0.1 if offsets else 0.0, errors={"angle_error_deg": 0.0},
+    )
+    datamodule.setup()
+    return datamodule.data.recordings["rotation"], torch.linalg.pinv(datamodule.data.truth.matrix.T)
+
+
+def shape_error(model: ShapeFromMotion, truth: torch.Tensor) -> float:
+    shape = model.physical_shape()
+    return float((orthogonal_procrustes(shape.T, truth.T).T @ shape - truth).norm() / truth.norm())
+
+
+def test_tied_alternation_is_the_alternation_on_pose_means():
+    """``sum_j |z_j - o - u S|^2 = sum_j |z_j - z_bar|^2 + c |z_bar - o - u S|^2``: tied, the fixed point is that of
+    every row replaced by its pose's mean (untied there, identical rows get identical directions)."""
+    recording, _ = poses_session(0.05, seed=1, offsets=True)
+    tied = refined(ShapeFromMotion(refinement="alternation"), recording)
+    means, index, _ = group_means(recording.readings, recording.groups)
+    replaced = dataclasses.replace(recording, readings=means[index], groups=None)
+    untied = refined(ShapeFromMotion(refinement="alternation"), replaced)
+    assert tied.tied and not untied.tied
+    # No known loads: the frame is each fit's own, the metric S^T S and the offsets are not.
+    gram = [model.physical_shape().T @ model.physical_shape() for model in (tied, untied)]
+    assert torch.allclose(gram[0], gram[1], rtol=0, atol=1e-8 * float(gram[0].abs().max()))
+    assert torch.allclose(tied.physical_offset(), untied.physical_offset(), rtol=0, atol=1e-8 * float(tied.physical_shape().abs().max()))
+    # One direction per pose in the error bars' parameter count: the residual noise is not inflated by 96 - 12 of them.
+    assert tied.uncertainty(recording, tied.fitted_loads(recording)).noise_std < 1.1 * 0.05 * float(tied.physical_shape().norm(dim=0).mean()) * 111.4
+
+
+def test_tied_marginal_likelihood_is_each_pose_integrated_once():
+    """The marginal's tied term against its definition: ``-log sum_k w_k prod_j N(z_j; o + F u_k S, s^2 I)`` per pose."""
+    recording, _ = poses_session(0.2, seed=2)
+    model = ShapeFromMotion(refinement="marginal")
+    model.initialise(recording)
+    index = torch.arange(len(recording.readings))
+    loss = float(model.marginal_loss((index, recording.readings, recording.loads))["marginal_nll"])
+    centred = recording.readings / model.reading_scale - model.offset.detach()
+    variance = float(torch.exp(2 * model.log_noise.detach()))
+    log_density = model.grid_log_likelihood(centred, 0).detach()  # rows x K, -|z_j - mu_k|^2 / 2 s^2
+    direct = 0.0
+    for pose in recording.groups.unique():
+        rows = recording.groups == pose
+        direct -= float(torch.logsumexp(model.log_prior[0] + log_density[rows].sum(dim=0), dim=0))
+    p = recording.readings.shape[1]
+    direct = (direct + len(centred) * p * math.log(math.sqrt(variance))) / len(centred)
+    assert loss == pytest.approx(direct, rel=1e-10)
+
+
+def test_tying_a_poses_rows_removes_most_of_the_alternations_low_snr_bias():
+    """At SNR 2 untied rows' directions are incidental parameters (96 of them) and bias the alternation; tied, 12."""
+    errors = {True: [], False: []}
+    for seed in range(6):
+        recording, truth = poses_session(0.5, seed)
+        for tie in (True, False):
+            model = refined(ShapeFromMotion(refinement="alternation", estimate_offset=False, tie_directions=tie), recording)
+            errors[tie].append(shape_error(model, truth))
+    tied, untied = (math.sqrt(sum(e * e for e in errors[tie]) / 6) for tie in (True, False))
+    assert tied < 0.6 * untied, (errors[True], errors[False])
+    assert sum(a < b for a, b in zip(errors[True], errors[False])) >= 5
