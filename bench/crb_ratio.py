@@ -14,7 +14,8 @@ third by the closed form's SNR; conf/optimizer/lbfgs.yaml). Run by hand:
     python bench/crb_ratio.py --trials 50 [--known-loads] [--refinements alternation marginal auto]
 
 ``--laws``: instead, the orientation laws of the simulators (``data.orientation_law``: uniform,
-hemisphere, band near the equator, 60-degree cone, 12 poses) at each SNR, for n = 2 and 3, tared and
+hemisphere, band near the equator, 60-degree cone, 12 poses, each row's pose given to the fit as its
+group so a pose's rows share one direction; ``--untied`` withholds it) at each SNR, for n = 2 and 3, tared and
 with offsets (``offset_scale`` 0.1, estimated, the bound with offsets), no known loads. Columns: the
 closed form, the alternation, the marginal likelihood and auto against the bound, and the coverage of
 auto's error bars (fraction of calibration-matrix entries within one reported standard error of the
@@ -37,6 +38,7 @@ sphere's posterior at SNR 100, so that column is left out for n = 3:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import warnings
 
@@ -209,11 +211,14 @@ def law_bound_table(trials: int, snrs: list[float]) -> None:
 
 def law_trial(args: tuple) -> tuple[float, ...]:
     """Squared shape errors of the closed form, alternation, marginal and auto, the bound, and auto's coverage counts."""
-    n, law, snr, offsets, seed, optimizer_cfg, learnt_law = args
+    n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie = args
     torch.set_num_threads(1)
     warnings.filterwarnings("ignore")
     datamodule = law_session(n, law, snr, offsets, seed)
     recording = datamodule.data.recordings["rotation"]
+    if not tie:
+        # The poses' labels withheld: every row its own direction.
+        recording = dataclasses.replace(recording, groups=None)
     truth, noise_std, bound = per_direction_bound(datamodule, snr, offsets)
     fitted = {}
     for refinement in ("alternation", "marginal"):
@@ -233,7 +238,9 @@ def law_trial(args: tuple) -> tuple[float, ...]:
     return closed_form, *errors, errors[list(fitted).index(chooser.refinement)], bound, float(within), float(bars.numel())
 
 
-def law_table(trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str]) -> None:
+def law_table(
+    trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool
+) -> None:
     """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``)."""
     import multiprocessing
 
@@ -246,7 +253,7 @@ def law_table(trials: int, snrs: list[float], processes: int, optimizer_cfg, lea
                     for snr in snrs:
                         if only and f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}" not in only:
                             continue
-                        jobs = [(n, law, snr, offsets, seed, optimizer_cfg, learnt_law) for seed in range(trials)]
+                        jobs = [(n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie) for seed in range(trials)]
                         results = torch.tensor(pool.map(law_trial, jobs))
                         *errors, bound, within, entries = results.sum(dim=0)
                         ratios = " | ".join(f"{float((e / bound).sqrt()):.2f}" for e in errors)
@@ -263,6 +270,7 @@ def main() -> None:
     parser.add_argument("--laws", action="store_true", help="the orientation-law table (see above)")
     parser.add_argument("--processes", type=int, default=1, help="trial processes for --laws (one thread each)")
     parser.add_argument("--law-bounds", action="store_true", help="the known-law bound against the per-direction one (see above)")
+    parser.add_argument("--untied", action="store_true", help="--laws: withhold the poses' labels (no tied directions)")
     parser.add_argument("--learnt-law", default="nonparametric", choices=LEARNT_LAWS, help="the marginal's law of directions (model.learnt_law)")
     parser.add_argument("--only", nargs="+", default=[], help="--laws rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
     args = parser.parse_args()
@@ -273,7 +281,7 @@ def main() -> None:
     torch.set_num_threads(1)
     optimizer_cfg = OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml")
     if args.laws:
-        law_table(args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only)
+        law_table(args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied)
         return
     if args.law_bounds:
         law_bound_table(args.trials, args.snr)

@@ -111,6 +111,15 @@ def project_unknown_loads(keep_axes: int):
     return edit
 
 
+def constant_column(name: str, value: str):
+    def edit(rows: list[list[str]]) -> None:
+        rows[0].append(name)
+        for row in rows[1:]:
+            row.append(value)
+
+    return edit
+
+
 def contradict_known_loads(rows: list[list[str]]) -> None:
     """The load along +fy written as pointing nearly along -fx (same magnitude): 80 degrees off."""
     angle = np.radians(170.0)
@@ -398,6 +407,14 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: calibrate(t, "data.time_column=tiem", "data.static_intervals=false"), r"time column 'tiem' is not in .* \(did you mean 'time'\?\)",
     ),
     "group column missing": (lambda t: calibrate(t, "data.group_column=pose"), r"group column 'pose' is not in .*session.csv"),
+    "group column that is not the pose (a session id)": (
+        lambda t: calibrate(
+            t, "data.group_column=session", "data.load_columns=[]", "data.axes=[x,y,z]", "data.channel_columns=[s0,s1,s2,s3,s4,s5]",
+            edit=constant_column("session", "7"), known_loads=0,
+        ),
+        r"groups \(static intervals, or data.group_column\) hold 1 poses, .* too few for the 9 unknowns .* "
+        r"set model.tie_directions=false if the groups are not poses",
+    ),
     "stray quote": (
         lambda t: calibrate_file(t, 's0,s1,fx,fy,fz\n1,2,,,\n"3,4,,,\n5,6,,,\n'),
         r"session.csv line 3: unexpected end of data \(a stray '\"'\?\): quote whole cells",

@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -12,6 +14,9 @@ from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.simulators.simulated_sensor import FingertipDataModule
+from hydra.utils import instantiate
+
+from tests.conftest import compose_config, write_session
 from tests.test_orientation_laws import refined
 
 
@@ -38,13 +43,16 @@ def test_tied_alternation_is_the_alternation_on_pose_means():
     means, index, _ = group_means(recording.readings, recording.groups)
     replaced = dataclasses.replace(recording, readings=means[index], groups=None)
     untied = refined(ShapeFromMotion(refinement="alternation"), replaced)
-    assert tied.tied and not untied.tied
+    assert tied.tied and not untied.tied and tied.direction_snr == pytest.approx(tied.snr * math.sqrt(8))
     # No known loads: the frame is each fit's own, the metric S^T S and the offsets are not.
     gram = [model.physical_shape().T @ model.physical_shape() for model in (tied, untied)]
     assert torch.allclose(gram[0], gram[1], rtol=0, atol=1e-8 * float(gram[0].abs().max()))
     assert torch.allclose(tied.physical_offset(), untied.physical_offset(), rtol=0, atol=1e-8 * float(tied.physical_shape().abs().max()))
     # One direction per pose in the error bars' parameter count: the residual noise is not inflated by 96 - 12 of them.
     assert tied.uncertainty(recording, tied.fitted_loads(recording)).noise_std < 1.1 * 0.05 * float(tied.physical_shape().norm(dim=0).mean()) * 111.4
+    # A model fitted again on rows without poses unties (as cross-validation refits do).
+    tied.initialise(replaced)
+    assert not tied.tied and tied.direction_snr == tied.snr
 
 
 def test_tied_marginal_likelihood_is_each_pose_integrated_once():
@@ -77,3 +85,22 @@ def test_tying_a_poses_rows_removes_most_of_the_alternations_low_snr_bias():
     tied, untied = (math.sqrt(sum(e * e for e in errors[tie]) / 6) for tie in (True, False))
     assert tied < 0.6 * untied, (errors[True], errors[False])
     assert sum(a < b for a, b in zip(errors[True], errors[False])) >= 5
+
+
+def test_rows_without_a_pose_label_are_poses_of_their_own(tmp_path: Path):
+    """An empty cell of data.group_column must not tie every unlabelled row to one direction."""
+
+    def label(rows: list[list[str]]) -> None:
+        rows[0].append("pose")
+        for i, row in enumerate(rows[1:]):
+            row.append(str(i // 10) if i < 40 else "")
+
+    write_session(tmp_path / "session.csv", edit=label)
+    cfg = compose_config(
+        ["experiment=calibrate_csv", f"data.path={tmp_path / 'session.csv'}", "data.magnitude=9.81", "data.group_column=pose"]
+    )
+    datamodule = instantiate(cfg.data)
+    datamodule.setup()
+    groups = datamodule.data.recordings["rotation"].groups
+    assert len(groups[:40].unique()) == 4 and len(groups[40:].unique()) == len(groups) - 40
+    assert not set(groups[:40].tolist()) & set(groups[40:].tolist())

@@ -295,12 +295,31 @@ class ShapeFromMotion(LinearCalibrator):
             self.start_marginal(noise)
 
     def tie_poses(self, recording: CalibrationRecording) -> None:
-        """Each row's pose (:attr:`row_pose`) where the directions are tied, and the unknown rows per direction."""
+        """Each row's pose (:attr:`row_pose`) where the directions are tied, and the unknown rows per direction
+        (:attr:`rows_per_direction`, the harmonic mean over the poses)."""
         poses = recording.same_load_groups() if self.tie_directions and not self.robust else None
         unknown = ~recording.known
-        self.row_pose = poses
+        self.row_pose, self.rows_per_direction = poses, 1.0
         if poses is not None and bool(unknown.any()):
-            self.rows_per_direction = int(unknown.sum()) / len(poses[unknown].unique())
+            self.require_poses(recording, len(poses[unknown].unique()))
+            # The harmonic mean of the poses' rows: one pose of thousands among many of three leaves most directions
+            # resting on three rows (the plain mean would call them sharp).
+            counts = torch.unique(poses[unknown], return_counts=True)[1].to(torch.float64)
+            self.rows_per_direction = float(len(counts) / (1 / counts).sum())
+
+    def require_poses(self, recording: CalibrationRecording, poses: int) -> None:
+        """Tied, the unknown rows give one equation ``|m| = F`` per pose and a distinct known load ``n``: fewer than
+        the shape's unknowns leave it undetermined (a group column that is not the pose, e.g. a session id)."""
+        n = self.rank
+        needed = metric_unknowns(n, self.estimate_offset)
+        equations = poses + n * len(torch.unique(recording.loads[recording.known], dim=0))
+        if self.constrained and recording.direction_maps is None and equations < needed:
+            raise SfmnetError(
+                f"the recording's groups (static intervals, or data.group_column) hold {poses} poses, whose rows share one "
+                f"direction each: too few for the {needed} unknowns of the shape{' and offsets' if self.estimate_offset else ''}; "
+                "give data.group_column the pose each row was held in, or set model.tie_directions=false if the groups "
+                "are not poses"
+            )
 
     @property
     def tied(self) -> bool:
@@ -317,7 +336,7 @@ class ShapeFromMotion(LinearCalibrator):
     @property
     def direction_snr(self) -> float:
         """The closed form's SNR (``F |s| / noise`` of one row) for one direction's data: a tied pose's mean reading
-        has ``sqrt(rows per pose)`` times a row's. The refinement's bias and the marginal's grid go by it."""
+        has ``sqrt(rows per pose)`` times a row's (:attr:`rows_per_direction`). The refinement's bias and the marginal's grid go by it."""
         return self.snr * math.sqrt(self.rows_per_direction)
 
     def closed_form_noise(self, recording: CalibrationRecording) -> float:

@@ -43,8 +43,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         configuration_column: six axes: the column naming each row's mass configuration.
         configurations: six axes: ``{<id>: {mass: <kg>, centre_of_mass: [x, y, z] (m, sensor frame)}}``
             for every id in the configuration column; then ``magnitude``/``mass`` are not used.
-        group_column: a column grouping rows (e.g. the pose they were recorded in) for
-            leave-one-group-out evaluation.
+        group_column: a column of the pose each row was recorded in: its rows share one direction
+            (``model.tie_directions``), and leave-one-group-out evaluation; an empty cell is a pose of its own.
         gravity: m/s^2, for ``mass`` and ``configurations``.
         static_intervals: leave out the rows in motion of a continuous recording
             (:mod:`sfmnet.readers.static_rows`): None: with a ``time_column``; True: also without
@@ -140,7 +140,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             )
         groups = None
         if self.group_column:
-            groups = torch.from_numpy(np.unique(table.numeric([self.group_column], "group")[:, 0], return_inverse=True)[1])
+            groups = torch.from_numpy(pose_labels(table.numeric([self.group_column], "group")[:, 0]))
         detection, keep = None, np.ones(len(readings), dtype=bool)
         if self.static is not None:
             time = table.numeric([self.time_column], "time")[:, 0] * self.static.time_scale if self.time_column else None
@@ -252,6 +252,16 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown, in a static interval"
             )
         return MirrorHint(sample=int(unknown[:row].sum()), axis=axis, sign=sign)
+
+
+def pose_labels(values: np.ndarray) -> np.ndarray:
+    """``f`` int64 labels 0..k-1 of a pose column's values, a row with an empty cell a pose of its own (its rows'
+    directions are tied: a missing label must not tie every unlabelled row to one direction)."""
+    values = values.copy()
+    missing = np.isnan(values)
+    top = values[~missing].max() if (~missing).any() else 0.0
+    values[missing] = top + 1 + np.arange(int(missing.sum()))
+    return np.unique(values, return_inverse=True)[1].reshape(-1)
 
 
 def load_axes(load_columns: list[str], axes: list[str] | None) -> list[str]:
