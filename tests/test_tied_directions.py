@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
 from sfmnet.models.shape_from_motion import ShapeFromMotion
@@ -104,3 +105,18 @@ def test_rows_without_a_pose_label_are_poses_of_their_own(tmp_path: Path):
     groups = datamodule.data.recordings["rotation"].groups
     assert len(groups[:40].unique()) == 4 and len(groups[40:].unique()) == len(groups) - 40
     assert not set(groups[:40].tolist()) & set(groups[40:].tolist())
+
+
+def test_too_few_poses_under_many_labels_point_to_the_groups():
+    """Four poses, each logged under three labels: twelve groups, four directions, fewer than the five unknowns."""
+    datamodule = FingertipDataModule(
+        magnitude=111.4, samples=96, known_loads=0, mirror_hint=False, noise_fraction=0.02, seed=3, poses=4,
+        orientation_law="poses", offset_scale=0.1, errors={"angle_error_deg": 0.0},
+    )
+    datamodule.setup()
+    recording = datamodule.data.recordings["rotation"]
+    recording = dataclasses.replace(recording, groups=torch.arange(96) // 8)
+    model = refined(ShapeFromMotion(refinement="alternation"), recording)
+    loads = model.fitted_loads(recording)
+    _, warnings, _ = calibration_diagnostics(model, recording, ["a", "b", "c", "d"], loads, model.uncertainty(recording, loads), "gf")
+    assert any("only 4 distinct orientations (poses) (the rows of one static interval or data.group_column label" in w for w in warnings), warnings

@@ -7,7 +7,7 @@ import math
 import torch
 
 from sfmnet.data.recording import CalibrationRecording
-from sfmnet.eval.goodness_of_fit import GoodnessOfFit, goodness_of_fit
+from sfmnet.eval.goodness_of_fit import GoodnessOfFit, PoseEquations, goodness_of_fit
 from sfmnet.linalg.directions import count_distinct_directions
 from sfmnet.linalg.factorisation import metric_unknowns
 from sfmnet.linalg.group_means import group_means
@@ -175,7 +175,7 @@ MAX_POSE_TOLERANCE = 0.3
 
 def distinct_poses(
     model: LinearCalibrator, recording: CalibrationRecording, loads: torch.Tensor, noise_std: float
-) -> tuple[int, int] | None:
+) -> PoseEquations | None:
     """How many equations of the metric constraint the rows' poses give, and how many it needs.
 
     Rows held in one orientation repeat one equation ``|m| = F``: only distinct directions count
@@ -193,4 +193,5 @@ def distinct_poses(
     tolerance = min(POSE_NOISE_SIGMAS * angle, MAX_POSE_TOLERANCE)
     directions = loads[~known] / loads[~known].norm(dim=1, keepdim=True)
     known_poses = len(torch.unique(recording.loads[known], dim=0))
-    return count_distinct_directions(directions, tolerance, needed) + n * known_poses, needed
+    equations = count_distinct_directions(directions, tolerance, needed) + n * known_poses
+    return PoseEquations(equations, needed, model.unknown_poses(recording) is not None)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import torch
 
@@ -41,6 +42,15 @@ MAX_VALLEY_BARS_RATIO = 2.5
 # Known loads (pose means) may sit this many predicted standard errors from where the calibration puts
 # them (a chi-square tail of ~3e-4 for one known pose in 3 axes).
 MAX_KNOWN_LOAD_RATIO = 2.5
+
+
+class PoseEquations(NamedTuple):
+    """The equations ``|m| = F`` the rows' distinct poses give (counted up to ``needed``), the shape's unknowns
+    (``needed``), and whether the fit tied each group's rows to one direction (then a group is one pose)."""
+
+    equations: int
+    needed: int
+    tied: bool
 
 
 @dataclass(frozen=True)
@@ -196,7 +206,7 @@ def goodness_of_fit(
     load_unit: str,
     constraint: tuple[torch.Tensor, torch.Tensor, float] | None = None,
     valley: tuple[ValleyScan, float] | None = None,
-    poses: tuple[int, int] | None = None,
+    poses: PoseEquations | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -289,13 +299,16 @@ def goodness_of_fit(
                 "or give known loads"
             )
     if poses is not None:
-        equations, needed = poses
+        equations, needed, tied = poses
         metrics["goodness/pose_equations"] = float(equations)
         if equations < needed:
+            # Tied, a group's rows were given one direction: wrong groups (poses merged) look like few poses.
+            groups = " (the rows of one static interval or data.group_column label share one direction: check them)"
             warnings.append(
-                f"the rows hold only {equations} distinct orientations (poses) for the {needed} unknowns of the shape"
-                f"{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: the calibration is not "
-                f"determined by them, however many rows repeat them; record at least {needed} poses (dozens give a good calibration)"
+                f"the rows hold only {equations} distinct orientations (poses){groups if tied else ''} for the {needed} "
+                f"unknowns of the shape{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: "
+                f"the calibration is not determined by them, however many rows repeat them; record at least {needed} poses "
+                "(dozens give a good calibration)"
             )
     count = int(outliers.sum())
     metrics.update(
