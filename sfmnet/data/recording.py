@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -65,11 +66,13 @@ class CalibrationRecording:
             return self.configuration
         return torch.zeros(len(self.readings), dtype=torch.long)
 
+    @cached_property
     def same_load_groups(self) -> torch.Tensor | None:
         """``f`` (long): :attr:`groups` split so that each holds rows of one load, or None without groups.
 
         One pose under another mass configuration, or with another known load, is another load; the
-        unknown rows of one group share one orientation (a static interval, a pose).
+        unknown rows of one group share one orientation (a static interval, a pose). Computed once (a sort of
+        every row; the fit, its error bars and its checks each ask).
         """
         if self.groups is None:
             return None
@@ -78,6 +81,11 @@ class CalibrationRecording:
         loads = torch.nan_to_num(self.loads, nan=math.inf)
         key = torch.cat([self.groups[:, None].to(loads.dtype), configuration[:, None], loads], dim=1)
         return torch.unique(key, dim=0, return_inverse=True)[1]
+
+    @property
+    def distinct_known_loads(self) -> int:
+        """How many different known loads the rows hold (each gives ``n`` equations of the shape)."""
+        return len(torch.unique(self.loads[self.known], dim=0))
 
     def without(self, rows: torch.Tensor) -> CalibrationRecording:
         """This recording with the boolean ``f`` mask ``rows`` removed (the mirror hint dropped)."""

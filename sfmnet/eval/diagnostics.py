@@ -72,7 +72,7 @@ def calibration_diagnostics(
     # An unconstrained row's load is free in all n dimensions; a constrained one has d - 1 free.
     direction_dims = recording.maps.shape[1] if model.constrained else recording.rank + 1
     known = recording.known
-    groups = recording.same_load_groups()
+    groups = recording.same_load_groups
     goodness = goodness_of_fit(
         residuals,
         recording.readings,
@@ -192,6 +192,5 @@ def distinct_poses(
     angle = noise_std * float(model.calibration_matrix().norm()) * math.sqrt((n - 1) / n) / magnitude
     tolerance = min(POSE_NOISE_SIGMAS * angle, MAX_POSE_TOLERANCE)
     directions = loads[~known] / loads[~known].norm(dim=1, keepdim=True)
-    known_poses = len(torch.unique(recording.loads[known], dim=0))
-    equations = count_distinct_directions(directions, tolerance, needed) + n * known_poses
+    equations = count_distinct_directions(directions, tolerance, needed) + n * recording.distinct_known_loads
     return PoseEquations(equations, needed, model.unknown_poses(recording) is not None)

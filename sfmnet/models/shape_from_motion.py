@@ -297,7 +297,7 @@ class ShapeFromMotion(LinearCalibrator):
     def tie_poses(self, recording: CalibrationRecording) -> None:
         """Each row's pose (:attr:`row_pose`) where the directions are tied, and the unknown rows per direction
         (:attr:`rows_per_direction`, the harmonic mean over the poses)."""
-        poses = recording.same_load_groups() if self.tie_directions and not self.robust else None
+        poses = recording.same_load_groups if self.tie_directions and not self.robust else None
         unknown = ~recording.known
         self.row_pose, self.rows_per_direction = poses, 1.0
         if poses is not None and bool(unknown.any()):
@@ -312,7 +312,7 @@ class ShapeFromMotion(LinearCalibrator):
         the shape's unknowns leave it undetermined (a group column that is not the pose, e.g. a session id)."""
         n = self.rank
         needed = metric_unknowns(n, self.estimate_offset)
-        equations = poses + n * len(torch.unique(recording.loads[recording.known], dim=0))
+        equations = poses + n * recording.distinct_known_loads
         if self.constrained and recording.direction_maps is None and equations < needed:
             raise SfmnetError(
                 f"the recording's groups (static intervals, or data.group_column) hold {poses} poses, whose rows share one "
@@ -710,7 +710,7 @@ class ShapeFromMotion(LinearCalibrator):
         return directions / directions.norm(dim=1, keepdim=True), row_maps
 
     def unknown_poses(self, recording: CalibrationRecording) -> torch.Tensor | None:
-        poses = recording.same_load_groups() if self.tied else None
+        poses = recording.same_load_groups if self.tied else None
         return None if poses is None else poses[~recording.known]
 
     @torch.no_grad()

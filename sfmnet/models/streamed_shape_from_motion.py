@@ -368,14 +368,13 @@ class StreamedShapeFromMotion(LinearCalibrator):
     def closed_form_signal_to_noise(self) -> float:
         """``F |s| / noise`` after the closed form alone, the noise from the readings' scatter off the load space.
 
-        The last ``p - n`` eigenvalues of the centred scatter hold noise only, ``f (p - n) sigma^2`` in all; with
-        ``p = n`` there are none and the SNR is not measured (infinite).
+        The last ``p - n`` squared singular values of the readings (pass 1's) hold noise only, ``f (p - n) sigma^2``
+        in all; with ``p = n`` there are none and the SNR is not measured (infinite).
         """
         p, n = len(self.data.channels), self.rank
         if p == n:
             return math.inf
-        trailing = torch.linalg.eigvalsh(self.moments.centred_cross())[: p - n].clamp_min(0)
-        noise = float((trailing.sum() / (self.moments.count * (p - n))).sqrt())
+        noise = float((self.singular_values[n:].pow(2).sum() / (self.moments.count * (p - n))).sqrt())
         if noise == 0:
             return math.inf
         return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
