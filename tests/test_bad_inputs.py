@@ -559,7 +559,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         simulated("experiment=lord3dof", "model.refinement=marginal", "model.marginal_grid=200"),
         r"model.marginal_grid=200 spaces the sphere's directions 14.4 degrees apart: give at least 1039",
     ),
-    "unknown learnt law": (simulated("model.learnt_law=smooth"), r"model.learnt_law is 'smooth': use one of nonparametric, harmonic"),
+    "unknown learnt law": (simulated("model.learnt_law=smooth"), r"model.learnt_law is 'smooth': use one of nonparametric, harmonic, uniform, held_out"),
     "metric weight 0": (simulated("model.metric_weight=0"), r"model.metric_weight is 0: give a number > 0 \(0 drops the metric constraint"),
     "text metric weight": (simulated("model.metric_weight=abc"), r"model.metric_weight is 'abc': give a number > 0"),
     "negative known-load tolerance": (lambda t: calibrate(t, "data.known_load_tolerance=-0.1"), r"data.known_load_tolerance is -0.1: give a number >= 0"),
