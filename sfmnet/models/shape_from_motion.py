@@ -365,7 +365,8 @@ class ShapeFromMotion(LinearCalibrator):
         self.log_prior = torch.full((configurations, len(self.grid)), -math.log(len(self.grid)), dtype=self.shape.dtype)
         if self.learnt_law in ("harmonic", "held_out"):
             self.law_bases = {degree: harmonic_basis(self.grid, degree) for degree in LAW_DEGREES}
-        self.law_choice = [self.learnt_law] * configurations
+        # held_out starts, and stays where a configuration has too few directions to split, nonparametric.
+        self.law_choice = ["nonparametric" if self.learnt_law == "held_out" else self.learnt_law] * configurations
         self.log_noise = dense_parameter((torch.as_tensor(noise, dtype=self.shape.dtype) / self.reading_scale).log())
 
     def grid_size(self, dims: int) -> int:
@@ -412,7 +413,7 @@ class ShapeFromMotion(LinearCalibrator):
         centred = readings / self.reading_scale - self.offset
         unknown = torch.isnan(loads).any(dim=1)
         for c, log_likelihood, _ in self.direction_log_likelihoods(centred, unknown, index):
-            if self.learnt_law == "held_out":
+            if self.learnt_law == "held_out" and len(log_likelihood) >= 2:
                 uniform = torch.full_like(self.log_prior[c], -math.log(len(self.grid)))
                 scores = {
                     law: held_out_log_likelihood(
