@@ -362,8 +362,8 @@ class ShapeFromMotion(LinearCalibrator):
         self.grid = direction_grid(d, self.grid_size(d))
         # One distribution of directions per mass configuration, uniform to start with.
         configurations = len(self.direction_maps)
-        self.log_prior = torch.full((configurations, len(self.grid)), -math.log(len(self.grid)), dtype=self.shape.dtype)
-        if self.learnt_law in ("harmonic", "held_out"):
+        self.log_prior = self.uniform_law().to(self.shape.dtype).repeat(configurations, 1)
+        if self.learnt_law == "harmonic":
             self.law_bases = {degree: harmonic_basis(self.grid, degree) for degree in LAW_DEGREES}
         # held_out starts, and stays where a configuration has too few directions to split, nonparametric.
         self.law_choice = ["nonparametric" if self.learnt_law == "held_out" else self.learnt_law] * configurations
@@ -414,7 +414,7 @@ class ShapeFromMotion(LinearCalibrator):
         unknown = torch.isnan(loads).any(dim=1)
         for c, log_likelihood, _ in self.direction_log_likelihoods(centred, unknown, index):
             if self.learnt_law == "held_out" and len(log_likelihood) >= 2:
-                uniform = torch.full_like(self.log_prior[c], -math.log(len(self.grid)))
+                uniform = self.uniform_law()
                 scores = {
                     law: held_out_log_likelihood(
                         log_likelihood, lambda half, law=law: self.fit_law(law, half, c, uniform, HELD_OUT_EM_STEPS)
@@ -423,6 +423,10 @@ class ShapeFromMotion(LinearCalibrator):
                 }
                 self.law_choice[c] = max(scores, key=scores.get)
             self.log_prior[c] = self.fit_law(self.law_choice[c], log_likelihood, c, self.log_prior[c])
+
+    def uniform_law(self) -> torch.Tensor:
+        """Log-weights of the uniform law on the marginal's grid, ``K``."""
+        return self.grid.new_full((len(self.grid),), -math.log(len(self.grid)))
 
     def fit_law(
         self, law: str, log_likelihood: torch.Tensor, configuration: int, start: torch.Tensor, em_steps: int = PRIOR_STEPS
@@ -434,7 +438,7 @@ class ShapeFromMotion(LinearCalibrator):
         smoothed towards uniform; ``"uniform"``: every grid direction alike, whatever the rows.
         """
         if law == "uniform":
-            return torch.full_like(start, -math.log(len(start)))
+            return self.uniform_law()
         if law == "harmonic":
             return fit_orientation_law(log_likelihood, self.law_bases, start)[0]
         return self.smoothed_em_law(log_likelihood, configuration, start, em_steps)
