@@ -43,6 +43,9 @@ def test_csv_contract_end_to_end(tmp_path: Path):
     metrics = json.loads((run_dir / "metrics.json").read_text())
     headline = result.stdout
     assert "channels     s0, s1, s2, s3, s4, s5 (6 channels)" in headline
+    # Which refinement ran, and the SNR auto chose it by, in the file and on screen.
+    assert calibration["refinement"] == "alternation" and calibration["tied_directions"] is False
+    assert f"refinement   alternation (direction SNR {calibration['direction_snr']:.3g})" in headline
     assert f"coverage     {metrics['coverage']:.2f} of the sphere" in headline
     assert f"residuals    {metrics['load_residual/force_rms']:.4g} N RMS in load units" in headline
     assert (

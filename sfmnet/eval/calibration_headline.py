@@ -8,6 +8,7 @@ believed (every goodness-of-fit check passed). The figures are those of ``metric
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from sfmnet.eval.diagnostics import WARN_COVERAGE
 
@@ -15,17 +16,27 @@ from sfmnet.eval.diagnostics import WARN_COVERAGE
 CHANNELS_WIDTH = 70
 
 
-def trust_lines(metrics: dict[str, float], channels: list[str], load_unit: str, magnitude: float, axes: int) -> list[str]:
-    """Indented lines: channels, coverage, residuals (load and raw units), known loads, error bars.
+def trust_lines(
+    metrics: dict[str, float],
+    channels: list[str],
+    load_unit: str,
+    magnitude: float,
+    axes: int,
+    estimator: dict[str, Any] | None = None,
+) -> list[str]:
+    """Indented lines: channels, the refinement, coverage, residuals (load and raw units), known loads, error bars.
 
     Args:
         metrics: the method's metrics (``coverage``, ``residual_rms``, ``load_residual/*``, ``goodness/*``, ...).
         channels: the channels fitted; load_unit: ``"N"``, or ``"N, N m"`` for force and torque.
         magnitude: ``F``, the calibration load's constant magnitude (load units); NaN where there is none.
         axes: ``n``, the load axes.
+        estimator: the calibration file's account of the refinement (``refinement``, ``direction_snr``, ...).
     """
     force_unit, _, torque_unit = load_unit.partition(", ")
     lines = [f"channels     {channel_list(channels)}"]
+    if estimator and "refinement" in estimator:
+        lines.append(f"refinement   {refinement_words(estimator)}")
     if "coverage" in metrics:
         space = "circle" if axes == 2 else "sphere"
         lines.append(
@@ -53,6 +64,19 @@ def trust_lines(metrics: dict[str, float], channels: list[str], load_unit: str, 
     else:
         lines.append("error bars   NOT TRUSTWORTHY: a goodness-of-fit check or the fit failed (the warnings say which)")
     return [f"    {line}" for line in lines]
+
+
+def refinement_words(estimator: dict[str, Any]) -> str:
+    """``marginal (direction SNR 3.1, directions tied to poses), law of directions learnt: nonparametric``."""
+    details = []
+    if "direction_snr" in estimator:
+        details.append(f"direction SNR {estimator['direction_snr']:.3g}")
+    if estimator.get("tied_directions"):
+        details.append("directions tied to poses")
+    words = estimator["refinement"] + (f" ({', '.join(details)})" if details else "")
+    if "laws_learnt" in estimator:
+        words += f", law of directions learnt: {', '.join(sorted(set(estimator['laws_learnt'])))}"
+    return words
 
 
 def channel_list(channels: list[str]) -> str:

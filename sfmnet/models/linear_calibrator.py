@@ -110,8 +110,12 @@ class LinearCalibrator(nn.Module, ABC):
             residual_rms=residual_rms,
             matrix_std=None if uncertainty is None else uncertainty.matrix_std,
             offset_std=None if uncertainty is None else uncertainty.offset_std,
-            extra={"method": self.name, "frame": self.frame_description(), **(extra or {})},
+            extra={"method": self.name, "frame": self.frame_description(), **self.estimator_description(), **(extra or {})},
         )
+
+    def estimator_description(self) -> dict[str, Any]:
+        """What the calibration file says of how the model was fitted beyond its method (none here)."""
+        return {}
 
     def frame_description(self) -> str:
         return "known_loads" if self.frame_fixed else "arbitrary (no known loads: correct up to an orthogonal transform)"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 
@@ -75,6 +75,12 @@ LEARNT_LAWS = ("nonparametric", "harmonic", "uniform", "held_out")
 HELD_OUT_LAWS = ("uniform", "nonparametric")
 # Smoothed EM steps from the uniform law of the nonparametric candidate fitted to one half of the directions.
 HELD_OUT_EM_STEPS = 300
+# That candidate's smoothing is at least this fraction of the spacing of its directions spread evenly
+# (grid_spacing of the half's count). Without it, at SNR 20 on the circle (one sample's spread 3 degrees,
+# barely smoothed) 48 directions learnt spikes that predicted the other half worse than the uniform law, so
+# the uniform law was taken on bands, hemispheres and cones (bench/crb_ratio.py --laws: 1.5-1.7x the bound,
+# 0.9x with this); a full spacing smoothed enough to beat the uniform law on a uniform sphere (1.16x, 1.04x here).
+HELD_OUT_WIDTH_PER_SPACING = 0.5
 # The widest spacing (radians) of the marginal's direction grid.
 MARGINAL_GRID_SPACING = 0.11
 # With tied directions the marginal learns its law from one mean per pose, so the law becomes a spike per pose on
@@ -232,6 +238,7 @@ class ShapeFromMotion(LinearCalibrator):
         self.register_buffer("log_prior", None)
         self.law_bases: dict[int, torch.Tensor] | None = None
         self.law_choice: list[str] = []
+        self.law_learnt: list[str] = []
         self.register_parameter("log_noise", None)
         self.register_buffer("direction_maps", None)
         self.register_buffer("row_configuration", None)
@@ -256,6 +263,16 @@ class ShapeFromMotion(LinearCalibrator):
         if self.constrained and self.direction_snr < ALTERNATION_BIASED_BELOW_SNR:
             return [low_snr_warning(self.direction_snr, "set model.refinement=marginal")]
         return []
+
+    def estimator_description(self) -> dict[str, Any]:
+        """The refinement that ran (``auto``'s choice), the SNR it was chosen by, whether the directions were tied
+        to poses and, for the marginal, the law of directions learnt per mass configuration (:attr:`law_learnt`)."""
+        description: dict[str, Any] = {"refinement": self.refinement}
+        if self.constrained:
+            description.update(direction_snr=self.direction_snr, tied_directions=self.tied)
+        if self.refinement == "marginal":
+            description.update(learnt_law=self.learnt_law, laws_learnt=list(self.law_learnt))
+        return description
 
     @property
     def constrained(self) -> bool:
@@ -367,6 +384,7 @@ class ShapeFromMotion(LinearCalibrator):
             self.law_bases = {degree: harmonic_basis(self.grid, degree) for degree in LAW_DEGREES}
         # held_out starts, and stays where a configuration has too few directions to split, nonparametric.
         self.law_choice = ["nonparametric" if self.learnt_law == "held_out" else self.learnt_law] * configurations
+        self.law_learnt = ["uniform"] * configurations
         self.log_noise = dense_parameter((torch.as_tensor(noise, dtype=self.shape.dtype) / self.reading_scale).log())
 
     def grid_size(self, dims: int) -> int:
@@ -405,7 +423,8 @@ class ShapeFromMotion(LinearCalibrator):
 
         From the free directions' grid likelihoods ``L_jk = N(z_j; o + u_k D_c S, s^2 I)`` (:meth:`fit_law`).
         ``learnt_law="held_out"`` first picks the law: the uniform law and the nonparametric one
-        (:data:`HELD_OUT_LAWS`) are each fitted to half the directions and scored on the other half
+        (:data:`HELD_OUT_LAWS`, the latter smoothed at least :data:`HELD_OUT_WIDTH_PER_SPACING` of its
+        directions' spacing) are each fitted to half the directions and scored on the other half
         (:func:`held_out_log_likelihood`), so the nonparametric law's free weights are learnt only where
         they predict directions they were not fitted to (:attr:`law_choice`).
         """
@@ -417,31 +436,43 @@ class ShapeFromMotion(LinearCalibrator):
                 uniform = self.uniform_law()
                 scores = {
                     law: held_out_log_likelihood(
-                        log_likelihood, lambda half, law=law: self.fit_law(law, half, c, uniform, HELD_OUT_EM_STEPS)
+                        log_likelihood,
+                        lambda half, law=law: self.fit_law(
+                            law, half, c, uniform, HELD_OUT_EM_STEPS, HELD_OUT_WIDTH_PER_SPACING * grid_spacing(self.grid.shape[1], len(half))
+                        )[0],
                     )
                     for law in HELD_OUT_LAWS
                 }
                 self.law_choice[c] = max(scores, key=scores.get)
-            self.log_prior[c] = self.fit_law(self.law_choice[c], log_likelihood, c, self.log_prior[c])
+            self.log_prior[c], self.law_learnt[c] = self.fit_law(self.law_choice[c], log_likelihood, c, self.log_prior[c])
 
     def uniform_law(self) -> torch.Tensor:
         """Log-weights of the uniform law on the marginal's grid, ``K``."""
         return self.grid.new_full((len(self.grid),), -math.log(len(self.grid)))
 
     def fit_law(
-        self, law: str, log_likelihood: torch.Tensor, configuration: int, start: torch.Tensor, em_steps: int = PRIOR_STEPS
-    ) -> torch.Tensor:
-        """Log-weights (``K``) of ``law`` fitted to directions' grid log-likelihoods (``g x K``), started from ``start``.
+        self,
+        law: str,
+        log_likelihood: torch.Tensor,
+        configuration: int,
+        start: torch.Tensor,
+        em_steps: int = PRIOR_STEPS,
+        least_width: float = 0.0,
+    ) -> tuple[torch.Tensor, str]:
+        """Log-weights (``K``) of ``law`` fitted to directions' grid log-likelihoods (``g x K``), started from
+        ``start``, and what was fitted in words (:attr:`law_learnt`).
 
         ``"nonparametric"``: a weight per grid direction (:meth:`smoothed_em_law`); ``"harmonic"``: a
         log-density of degree 0 to 4, the degree by the BIC (:func:`fit_orientation_law`), so a band is not
         smoothed towards uniform; ``"uniform"``: every grid direction alike, whatever the rows.
+        ``least_width``: the nonparametric law's least smoothing width, radians (:meth:`prior_kernel`).
         """
         if law == "uniform":
-            return self.uniform_law()
+            return self.uniform_law(), law
         if law == "harmonic":
-            return fit_orientation_law(log_likelihood, self.law_bases, start)[0]
-        return self.smoothed_em_law(log_likelihood, configuration, start, em_steps)
+            log_weights, degree = fit_orientation_law(log_likelihood, self.law_bases, start)
+            return log_weights, f"harmonic of degree {degree}"
+        return self.smoothed_em_law(log_likelihood, configuration, start, em_steps, least_width), law
 
     def direction_log_likelihoods(
         self, centred: torch.Tensor, unknown: torch.Tensor, index: torch.Tensor
@@ -467,7 +498,12 @@ class ShapeFromMotion(LinearCalibrator):
             yield c, counts[:, None].to(means.dtype) * self.grid_log_likelihood(means, c), scatter
 
     def smoothed_em_law(
-        self, log_likelihood: torch.Tensor, configuration: int, start: torch.Tensor, steps: int = PRIOR_STEPS
+        self,
+        log_likelihood: torch.Tensor,
+        configuration: int,
+        start: torch.Tensor,
+        steps: int = PRIOR_STEPS,
+        least_width: float = 0.0,
     ) -> torch.Tensor:
         """``steps`` smoothed EM steps (Silverman et al. 1990) from the law ``start`` (log-weights): log-weights, ``K``.
 
@@ -476,18 +512,18 @@ class ShapeFromMotion(LinearCalibrator):
         nonparametric maximum-likelihood mixing distribution, smoothed to the resolution the data support.
         """
         likelihood = torch.exp(log_likelihood - log_likelihood.max(dim=1, keepdim=True).values)
-        kernel = self.prior_kernel(configuration)
+        kernel = self.prior_kernel(configuration, least_width)
         prior = start.exp()
         for _ in range(steps):
             prior = kernel.T @ (prior * (likelihood.T @ (1 / (likelihood @ prior))) / len(likelihood))
         # Grid points the data rule out keep a floor, so the log stays finite.
         return prior.clamp_min(torch.finfo(prior.dtype).tiny).log()
 
-    def prior_kernel(self, configuration: int) -> torch.Tensor:
+    def prior_kernel(self, configuration: int, least_width: float = 0.0) -> torch.Tensor:
         """The smoothing kernel of :meth:`smoothed_em_law` between grid points, ``K x K`` (rows sum to one).
 
         A von Mises-Fisher kernel ``exp(kappa u_k . u_l)``, ``kappa = 1 / h^2``, of angular width
-        ``h = PRIOR_SMOOTHING * a^2`` (radians), ``a = s / rms(singular values of D_c S)`` the spread of
+        ``h = max(PRIOR_SMOOTHING * a^2, least_width)`` (radians), ``a = s / rms(singular values of D_c S)`` the spread of
         one sample's direction (of a pose's mean, ``s`` over the square root of the rows per pose, when tied). Smoothing tames the unsmoothed estimate's spikes where ``a`` is
         wide (SNR ~ 2); its own bias, ``O(h^2) = O(a^4)``, stays below the incidental-parameter bias
         ``O(a^2)`` it replaces where ``a`` is narrow.
@@ -496,7 +532,8 @@ class ShapeFromMotion(LinearCalibrator):
         # A tied direction rests on its pose's mean reading, whose noise is smaller.
         noise = torch.exp(self.log_noise.detach()) / math.sqrt(self.rows_per_direction)
         spread = float(noise / singular.pow(2).mean().sqrt())
-        return torch.softmax(self.grid @ self.grid.T / (PRIOR_SMOOTHING * spread**2) ** 2, dim=1)
+        width = max(PRIOR_SMOOTHING * spread**2, least_width)
+        return torch.softmax(self.grid @ self.grid.T / width**2, dim=1)
 
     def marginal_loss(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Negative log marginal likelihood per row, each unknown direction integrated over the grid.

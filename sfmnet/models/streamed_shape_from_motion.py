@@ -384,6 +384,10 @@ class StreamedShapeFromMotion(LinearCalibrator):
         noise = float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt())
         return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
 
+    def estimator_description(self) -> dict[str, object]:
+        """The streamed refinement that ran, for the calibration file."""
+        return {"refinement": self.refinement}
+
     @property
     def fit_warnings(self) -> list[str]:
         problems = self.fit_problems()

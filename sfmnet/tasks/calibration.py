@@ -143,7 +143,12 @@ class CalibrationTask(Task):
             lines.append(headline(result, data.load_unit))
             if result.name == main:
                 recording = data.recordings[result.model.recording]
-                lines.extend(trust_lines(result.metrics, data.channels, data.load_unit, recording.magnitude, recording.rank))
+                lines.extend(
+                    trust_lines(
+                        result.metrics, data.channels, data.load_unit, recording.magnitude, recording.rank,
+                        result.result.extra,
+                    )
+                )
             elif not result.metrics.get("error_bars_trustworthy", 1.0):
                 lines.append(f"  {result.name}: NOT TRUSTWORTHY: the checks below say the model does not describe this data")
             lines.extend(f"  warning ({result.name}): {warning}" for warning in result.warnings)
