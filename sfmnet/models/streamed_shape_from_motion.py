@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import torch
@@ -384,7 +385,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         noise = float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt())
         return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
 
-    def estimator_description(self) -> dict[str, object]:
+    def estimator_description(self) -> dict[str, Any]:
         """The streamed refinement that ran, for the calibration file."""
         return {"refinement": self.refinement}
 
