@@ -23,6 +23,10 @@ truth, the frame aligned). Trials run in ``--processes`` processes of one thread
 
     python bench/crb_ratio.py --laws --trials 50 --processes 2 [--learnt-law harmonic] [--only 3:yes:band:20 ...]
 
+``--true-law`` adds a column before auto's: the marginal given the session's true law of directions on its
+grid, held fixed (:class:`TrueLawMarginal`; not for ``poses``, whose law is its 12 drawn directions). No user
+knows it; the gap between it and the marginal column is what learning the law costs.
+
 ``--law-bounds``: the bound above treats each sample's direction as an unknown parameter. When the
 directions are draws from a law the estimator knows, the data say more (a direction confined to a band
 cannot be anywhere); this prints, per law (not ``poses``, whose 12 drawn directions are the law) and
@@ -209,9 +213,47 @@ def law_bound_table(trials: int, snrs: list[float]) -> None:
                 print(f"| {n} | {'yes' if offsets else 'no'} | {law} | " + " | ".join(cells) + " |", flush=True)
 
 
+def law_contains(law: str, directions: torch.Tensor) -> torch.Tensor:
+    """Which of ``k x dims`` unit directions lie in an orientation law's support: ``k`` (bool)."""
+    if directions.shape[1] == 3:
+        low, high = sphere_zone(law)
+        return (directions[:, 2] >= low) & (directions[:, 2] <= high)
+    centre, half_width = circle_arc(law)
+    angle = torch.atan2(directions[:, 1], directions[:, 0])
+
+    def within(middle: float) -> torch.Tensor:
+        return (torch.remainder(angle - middle + math.pi, 2 * math.pi) - math.pi).abs() <= half_width
+
+    return within(centre) | within(centre + math.pi) if law == "band" else within(centre)
+
+
+class TrueLawMarginal(ShapeFromMotion):
+    """The marginal refinement given a session's true law of directions (uniform on its support), held fixed.
+
+    The law is stated in the truth's frame, so the closed form is first turned into it (no known load
+    fixes the frame, so the turn changes no likelihood).
+    """
+
+    def __init__(self, law: str, truth: torch.Tensor, estimate_offset: bool) -> None:
+        super().__init__(estimate_offset=estimate_offset, refinement="marginal")
+        self.true_law, self.truth = law, truth
+
+    def initialise(self, recording) -> None:
+        super().initialise(recording)
+        turn = orthogonal_procrustes(self.physical_shape().T, self.truth.T).T
+        with torch.no_grad():
+            self.shape.copy_(turn.to(self.shape.dtype) @ self.shape)
+        weights = law_contains(self.true_law, self.grid).to(self.grid.dtype)
+        self.log_prior[:] = (weights / weights.sum()).clamp_min(torch.finfo(weights.dtype).tiny).log()
+
+    def update_law(self, batch) -> None:
+        """The law is known: nothing to learn."""
+
+
 def law_trial(args: tuple) -> tuple[float, ...]:
-    """Squared shape errors of the closed form, alternation, marginal and auto, the bound, and auto's coverage counts."""
-    n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie = args
+    """Squared shape errors of the closed form, alternation, marginal, (with ``true_law``) the marginal given the true
+    law (NaN on ``poses``) and auto, the bound, and auto's coverage counts."""
+    n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law = args
     torch.set_num_threads(1)
     warnings.filterwarnings("ignore")
     datamodule = law_session(n, law, snr, offsets, seed)
@@ -235,17 +277,24 @@ def law_trial(args: tuple) -> tuple[float, ...]:
     # turning the fit instead mixes the rows of C, whose bars differ.
     within = ((auto.calibration_matrix() - alignment.T @ datamodule.data.truth.matrix).abs() < bars).sum()
     errors = [error2(model.physical_shape(), truth, align=True) for model in fitted.values()]
+    if true_law:
+        known = float("nan")
+        if law != "poses":
+            model = refine_in_process(TrueLawMarginal(law, truth, offsets), recording, instantiate(optimizer_cfg))
+            known = error2(model.physical_shape(), truth, align=True)
+        errors.append(known)
     return closed_form, *errors, errors[list(fitted).index(chooser.refinement)], bound, float(within), float(bars.numel())
 
 
 def law_table(
-    trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool
+    trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool, true_law: bool
 ) -> None:
     """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``)."""
     import multiprocessing
 
-    print("| n | offsets | law | SNR | closed form / CRB | alternation / CRB | marginal / CRB | auto / CRB | auto 68 % coverage |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    columns = ["closed form", "alternation", "marginal", *(["marginal, true law"] if true_law else []), "auto"]
+    print("| n | offsets | law | SNR | " + " | ".join(f"{c} / CRB" for c in columns) + " | auto 68 % coverage |")
+    print("|---|---|---|---|" + "---|" * (len(columns) + 1))
     with multiprocessing.get_context("spawn").Pool(processes) as pool:
         for n in (2, 3):
             for offsets in (False, True):
@@ -253,10 +302,10 @@ def law_table(
                     for snr in snrs:
                         if only and f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}" not in only:
                             continue
-                        jobs = [(n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie) for seed in range(trials)]
+                        jobs = [(n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law) for seed in range(trials)]
                         results = torch.tensor(pool.map(law_trial, jobs))
                         *errors, bound, within, entries = results.sum(dim=0)
-                        ratios = " | ".join(f"{float((e / bound).sqrt()):.2f}" for e in errors)
+                        ratios = " | ".join("-" if e.isnan() else f"{float((e / bound).sqrt()):.2f}" for e in errors)
                         coverage = float(within / entries)
                         print(f"| {n} | {'yes' if offsets else 'no'} | {law} | {snr:g} | {ratios} | {coverage:.2f} |", flush=True)
 
@@ -272,6 +321,7 @@ def main() -> None:
     parser.add_argument("--law-bounds", action="store_true", help="the known-law bound against the per-direction one (see above)")
     parser.add_argument("--untied", action="store_true", help="--laws: withhold the poses' labels (no tied directions)")
     parser.add_argument("--learnt-law", default="nonparametric", choices=LEARNT_LAWS, help="the marginal's law of directions (model.learnt_law)")
+    parser.add_argument("--true-law", action="store_true", help="--laws: add the marginal given the true law of directions (see above)")
     parser.add_argument("--only", nargs="+", default=[], help="--laws rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
@@ -281,7 +331,7 @@ def main() -> None:
     torch.set_num_threads(1)
     optimizer_cfg = OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml")
     if args.laws:
-        law_table(args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied)
+        law_table(args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied, args.true_law)
         return
     if args.law_bounds:
         law_bound_table(args.trials, args.snr)
