@@ -120,7 +120,10 @@ def test_a_narrow_cap_of_directions_is_rarely_silently_wrong():
 
 
 def test_directions_over_the_sphere_raise_no_valley_warning():
+    # Noise 2 % of the spread: SNR 65-80, so auto fits by the alternation, whose fits the valley check scans (at 3 %,
+    # SNR 44-53, seed 0 took the marginal).
     for seed in range(3):
-        _, _, ratio, warnings = valley_check(cap_session(seed, None)[0])
+        model, _, ratio, warnings = valley_check(cap_session(seed, None, noise=0.02)[0])
+        assert model.refinement == "alternation"
         assert ratio < 1.0
         assert not any("explain the readings as well" in w for w in warnings)

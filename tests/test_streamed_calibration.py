@@ -135,6 +135,17 @@ def test_a_biased_or_runaway_alternation_says_so_and_disowns_its_error_bars(
     assert calibration["error_bars_trustworthy"] == (problem is None)
 
 
+def test_the_streamed_alternation_s_snr_is_the_simulated_one(tmp_path: Path):
+    """The SNR its low-SNR warning gives counts the residuals' degrees of freedom (each row's direction takes up one of
+    its four components): the simulated SNR 5 (noise 20 % of F |s|) was given as 6.1, now 5.2."""
+    session = write_fingertip(tmp_path / "session.csv", "uniform", 0.2)
+    overrides = ["data.magnitude=111.4", "data.load_columns=[]", "data.axes=[x,y]", "data.time_column=time", "trainer.enable_progress_bar=false"]
+    train(compose_config(["experiment=calibrate_stream", f"data.path={session}", *overrides]), tmp_path / "run")
+    warnings = json.loads((tmp_path / "run" / "calibration.json").read_text())["warnings"]
+    snr = [float(w.split()[1]) for w in warnings if w.startswith("SNR ")]
+    assert len(snr) == 1 and snr[0] == pytest.approx(5, rel=0.1), warnings
+
+
 @pytest.mark.parametrize(("noise_fraction", "warned"), [(0.01, False), (0.2, True)])
 def test_a_streamed_closed_form_at_low_snr_is_not_trusted(tmp_path: Path, noise_fraction: float, warned: bool):
     """The closed form (an algebraic ellipsoid fit) is biased at low SNR as the alternation is: its noise is measured

@@ -98,6 +98,18 @@ def grid_spacing(dims: int, count: int) -> float:
     return (area / count) ** (1 / (dims - 1))
 
 
+def residual_noise(squares: float, rows: int, channels: int, free_directions: int, direction_dims: int, parameters: int) -> float:
+    """The noise of one channel from a fit's residual sum of squares over ``rows x channels`` entries: ``sqrt(squares / dof)``.
+
+    ``dof = rows p - g (d - 1) - parameters``: each of the ``g`` free directions takes up ``d - 1`` of its
+    row's ``p`` components (``d`` the direction's dimension), the shape and offsets their entries. The plain
+    RMS would understate the noise by about ``sqrt((p - d + 1) / p)`` and so overstate the SNR, most where
+    ``p = n`` (``sqrt(3)`` on a 3-axis accelerometer).
+    """
+    dof = rows * channels - free_directions * (direction_dims - 1) - parameters
+    return math.sqrt(squares / max(dof, 1))
+
+
 def shape_growth(shape: torch.Tensor, closed_form_scale: float) -> float:
     """The largest singular value of ``S`` (``n x p``) over the closed form's: past :data:`RUNAWAY_GROWTH` the alternation ran away."""
     return float(torch.linalg.matrix_norm(shape, ord=2)) / closed_form_scale
@@ -305,7 +317,7 @@ class ShapeFromMotion(LinearCalibrator):
         self.closed_form_scale = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2))
         if self.constrained:
             self.tie_poses(recording)
-            noise = self.closed_form_noise(recording)
+            noise, rms = self.closed_form_noise(recording)
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":
             marginal = self.constrained and self.direction_snr < self.marginal_below_snr() and not self.robust
@@ -320,7 +332,8 @@ class ShapeFromMotion(LinearCalibrator):
                 )
             self.refinement = "marginal" if marginal else "alternation"
         if self.refinement == "marginal":
-            self.start_marginal(noise)
+            # The marginal learns its noise; it starts where the README's tables were measured from, the residuals' RMS.
+            self.start_marginal(rms)
 
     def tie_poses(self, recording: CalibrationRecording) -> None:
         """Each row's pose (:attr:`row_pose`) where the directions are tied, and the unknown rows per direction
@@ -367,9 +380,17 @@ class ShapeFromMotion(LinearCalibrator):
         has ``sqrt(rows per pose)`` times a row's (:attr:`rows_per_direction`). The refinement's bias and the marginal's grid go by it."""
         return self.snr * math.sqrt(self.rows_per_direction)
 
-    def closed_form_noise(self, recording: CalibrationRecording) -> float:
-        """RMS of the closed form's residuals, raw units: the noise its SNR (``F |s| / noise``) is judged by."""
-        return float(self.fitted_residuals(recording, self.fitted_loads(recording)).pow(2).mean().sqrt())
+    def closed_form_noise(self, recording: CalibrationRecording) -> tuple[float, float]:
+        """The noise of one channel, raw units, from the closed form's residuals (:func:`residual_noise`: one free
+        direction per unknown row, or per pose when tied): the noise its SNR (``F |s| / noise``) is judged by; and
+        the residuals' plain RMS."""
+        residuals = self.fitted_residuals(recording, self.fitted_loads(recording))
+        f, p = residuals.shape
+        poses = self.unknown_poses(recording)
+        free = int((~recording.known).sum()) if poses is None else len(poses.unique())
+        squares = float(residuals.pow(2).sum())
+        noise = residual_noise(squares, f, p, free, self.direction_maps.shape[1], (self.rank + self.estimate_offset) * p)
+        return noise, math.sqrt(squares / residuals.numel())
 
     def start_marginal(self, noise: float) -> None:
         """The direction grid of the marginal likelihood, and its noise level started at ``noise`` (raw units)."""

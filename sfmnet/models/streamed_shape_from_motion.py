@@ -34,6 +34,7 @@ from sfmnet.models.shape_from_motion import (
     ALTERNATION_BIASED_BELOW_SNR,
     RUNAWAY_GROWTH,
     low_snr_warning,
+    residual_noise,
     runaway_warning,
     shape_growth,
 )
@@ -381,8 +382,11 @@ class StreamedShapeFromMotion(LinearCalibrator):
         return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
 
     def signal_to_noise(self) -> float:
-        """``F |s| / noise`` with the last pass's residual RMS for the noise, as ``ShapeFromMotion`` judges it by."""
-        noise = float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt())
+        """``F |s| / noise`` with the noise from the last pass's residuals (:func:`residual_noise`, a free direction per
+        unknown row), as ``ShapeFromMotion`` judges it by."""
+        p, n = len(self.data.channels), self.rank
+        rows = int(self.moments.count)
+        noise = residual_noise(float(self.residual_squares.sum()), rows, p, rows - len(self.known), n, (n + self.estimate_offset) * p)
         return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
 
     def estimator_description(self) -> dict[str, Any]:
