@@ -98,6 +98,13 @@ def test_coplanar_motion_is_an_error_in_3d():
         ShapeFromMotion(rank=3).initialise(data.recordings["rotation"])
 
 
+def test_the_marginal_without_the_metric_constraint_is_refused_when_built():
+    # It integrates over the unit sphere, which an unconstrained factorisation does not have (it used to fail later,
+    # in initialise, on a name its noise estimate had not bound).
+    with pytest.raises(SfmnetError, match="it needs metric_weight > 0"):
+        ShapeFromMotion(metric_weight=0, refinement="marginal")
+
+
 def test_fewer_samples_than_unknowns_is_an_error():
     data = noise_free(ForceSensor3DataModule, 3, samples=5, known_loads=3)
     with pytest.raises(SfmnetError, match="only 8 samples for 9 unknowns of the metric constraint with offsets"):
