@@ -21,6 +21,7 @@ from sfmnet.linalg.factorisation import (
     truncated_svd_factors,
 )
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
+from sfmnet.linalg.uncertainty import residual_noise_variance
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.least_squares import least_squares_shape
 from sfmnet.linalg.orientation_law import LAW_DEGREES, fit_orientation_law, harmonic_basis, held_out_log_likelihood
@@ -96,19 +97,6 @@ def grid_spacing(dims: int, count: int) -> float:
     ``(area / count)^(1 / (dims - 1))``."""
     area = 2 * math.pi if dims == 2 else 4 * math.pi
     return (area / count) ** (1 / (dims - 1))
-
-
-def residual_noise(squares: float, rows: int, channels: int, free_directions: int, direction_dims: int, parameters: int) -> float:
-    """The noise of one channel from a fit's residual sum of squares over ``rows x channels`` entries: ``sqrt(squares / dof)``.
-
-    ``dof = rows p - g (d - 1) - parameters``: each of the ``g`` free directions takes up ``d - 1`` of its
-    row's ``p`` components (``d`` the direction's dimension), the shape and offsets their entries (the frame's
-    rotation, unidentified without known loads, is not counted: a few of hundreds). The plain RMS understates
-    the noise by about ``sqrt((p - d + 1) / p)`` and so overstates the SNR, most where ``p = n`` (simulated,
-    SNR 20: 1.25x at p = 6, n = 3, and 1.57x at p = n = 3; counted, 1.01x and 0.88x).
-    """
-    dof = rows * channels - free_directions * (direction_dims - 1) - parameters
-    return math.sqrt(squares / max(dof, 1))
 
 
 def shape_growth(shape: torch.Tensor, closed_form_scale: float) -> float:
@@ -384,7 +372,7 @@ class ShapeFromMotion(LinearCalibrator):
         return self.snr * math.sqrt(self.rows_per_direction)
 
     def closed_form_noise(self, recording: CalibrationRecording) -> tuple[float, float]:
-        """The noise of one channel, raw units, from the closed form's residuals (:func:`residual_noise`: one free
+        """The noise of one channel, raw units, from the closed form's residuals (:func:`residual_noise_variance`: one free
         direction per unknown row, or per pose when tied): the noise its SNR (``F |s| / noise``) is judged by; and
         the residuals' plain RMS."""
         residuals = self.fitted_residuals(recording, self.fitted_loads(recording))
@@ -392,8 +380,8 @@ class ShapeFromMotion(LinearCalibrator):
         poses = self.unknown_poses(recording)
         free = int((~recording.known).sum()) if poses is None else len(poses.unique())
         squares = float(residuals.pow(2).sum())
-        noise = residual_noise(squares, f, p, free, self.direction_maps.shape[1], (self.rank + self.estimate_offset) * p)
-        return noise, math.sqrt(squares / residuals.numel())
+        variance = residual_noise_variance(squares, f * p, free, self.direction_maps.shape[1], (self.rank + self.estimate_offset) * p)
+        return math.sqrt(variance), math.sqrt(squares / residuals.numel())
 
     def start_marginal(self, noise: float) -> None:
         """The direction grid of the marginal likelihood, and its noise level started at ``noise`` (raw units)."""

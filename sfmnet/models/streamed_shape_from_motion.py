@@ -27,14 +27,13 @@ from sfmnet.linalg.moments import (
     principal_subspace,
     singular_values_from_scatter,
 )
-from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
+from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty, residual_noise_variance
 from sfmnet.models.contracts import FitMode
 from sfmnet.models.linear_calibrator import LinearCalibrator, UnknownRows
 from sfmnet.models.shape_from_motion import (
     ALTERNATION_BIASED_BELOW_SNR,
     RUNAWAY_GROWTH,
     low_snr_warning,
-    residual_noise,
     runaway_warning,
     shape_growth,
 )
@@ -382,12 +381,13 @@ class StreamedShapeFromMotion(LinearCalibrator):
         return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
 
     def signal_to_noise(self) -> float:
-        """``F |s| / noise`` with the noise from the last pass's residuals (:func:`residual_noise`, a free direction per
+        """``F |s| / noise`` with the noise from the last pass's residuals (:func:`residual_noise_variance`, a free direction per
         unknown row), as ``ShapeFromMotion`` judges it by."""
         p, n = len(self.data.channels), self.rank
-        rows = int(self.moments.count)
-        noise = residual_noise(float(self.residual_squares.sum()), rows, p, rows - len(self.known), n, (n + self.estimate_offset) * p)
-        return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
+        variance = residual_noise_variance(
+            float(self.residual_squares.sum()), int(self.moments.count) * p, self.unknown_rows_streamed, n, (n + self.estimate_offset) * p
+        )
+        return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / math.sqrt(variance)
 
     def estimator_description(self) -> dict[str, Any]:
         """The streamed refinement that ran, for the calibration file."""
@@ -428,9 +428,14 @@ class StreamedShapeFromMotion(LinearCalibrator):
         n = self.rank
         return directions, magnitude * torch.eye(n, dtype=directions.dtype).expand(len(directions), n, n)
 
+    @property
+    def unknown_rows_streamed(self) -> int:
+        """Rows streamed (motion left out) whose load is unknown."""
+        return int(self.moments.count) - len(self.known)
+
     def unknown_row_weight(self, recording: CalibrationRecording) -> float:
         """The sample's unknown rows (:meth:`report_recording`) stand for every unknown row streamed."""
-        return (float(self.moments.count) - len(self.known)) / int((~recording.known).sum())
+        return self.unknown_rows_streamed / int((~recording.known).sum())
 
     def uncertainty(
         self, recording: CalibrationRecording, loads: torch.Tensor, unknown: UnknownRows | None = None
