@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import math
 import warnings
 
@@ -59,6 +60,9 @@ from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
 from sfmnet.models.shape_from_motion import LEARNT_LAWS, ShapeFromMotion
 from sfmnet.training.fitting import refine_in_process
 from sfmnet.training.learner_module import LearnerModule
+
+# The product's default law, so a plain run measures what users get.
+LEARNT_LAW_DEFAULT = inspect.signature(ShapeFromMotion).parameters["learnt_law"].default
 
 SENSORS = {
     "2-axis fingertip, p=4, f=96": (FingertipDataModule, {"magnitude": 111.4, "samples": 96}, 2),
@@ -235,7 +239,8 @@ class TrueLawMarginal(ShapeFromMotion):
     """
 
     def __init__(self, law: str, truth: torch.Tensor, estimate_offset: bool) -> None:
-        super().__init__(estimate_offset=estimate_offset, refinement="marginal")
+        # Its law is set once (below) and never learnt, so none of the learnt laws' candidates is built.
+        super().__init__(estimate_offset=estimate_offset, refinement="marginal", learnt_law="uniform")
         self.true_law, self.truth = law, truth
 
     def initialise(self, recording) -> None:
@@ -324,7 +329,7 @@ def main() -> None:
     parser.add_argument("--processes", type=int, default=1, help="trial processes for --laws (one thread each)")
     parser.add_argument("--law-bounds", action="store_true", help="the known-law bound against the per-direction one (see above)")
     parser.add_argument("--untied", action="store_true", help="--laws: withhold the poses' labels (no tied directions)")
-    parser.add_argument("--learnt-law", default="nonparametric", choices=LEARNT_LAWS, help="the marginal's law of directions (model.learnt_law)")
+    parser.add_argument("--learnt-law", default=LEARNT_LAW_DEFAULT, choices=LEARNT_LAWS, help="the marginal's law of directions (model.learnt_law)")
     parser.add_argument("--true-law", action="store_true", help="--laws: add the marginal given the true law of directions (see above)")
     parser.add_argument("--only", nargs="+", default=[], help="--laws rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
     args = parser.parse_args()

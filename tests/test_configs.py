@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import inspect
+from pathlib import Path
+
 import pytest
-from hydra.utils import instantiate
+from hydra.utils import get_class, instantiate
+from omegaconf import OmegaConf
 
 from tests.conftest import EXPERIMENTS, compose_config, experiment_overrides
 
@@ -32,3 +36,15 @@ def test_default_experiment_is_fingertip():
 def test_group_options_compose(group: str, option: str):
     cfg = compose_config([f"{group}={option}"])
     assert cfg[group]._target_
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).parents[1] / "conf" / "model").glob("*.yaml")), ids=lambda p: p.stem)
+def test_model_configs_state_the_constructors_defaults(path: Path):
+    """A model config's literal values are its class's defaults, so the CLI, the Python API and the benchmarks that
+    build models directly fit the same model (``learnt_law`` once differed between them)."""
+    cfg = OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+    parameters = inspect.signature(get_class(cfg.pop("_target_"))).parameters
+    for key, value in cfg.items():
+        if isinstance(value, str) and (value.startswith("${") or value == "???"):
+            continue
+        assert value == parameters[key].default, (key, value, parameters[key].default)

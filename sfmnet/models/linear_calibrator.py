@@ -159,6 +159,11 @@ class LinearCalibrator(nn.Module, ABC):
         n = recording.rank
         return recording.loads[:0], recording.loads.new_zeros(0, n, n)
 
+    def information_directions(self, recording: CalibrationRecording, directions: torch.Tensor) -> torch.Tensor:
+        """The unknown rows' directions (``f' x d``) at which the error bars' information is evaluated: the fitted
+        ``directions`` (:meth:`unknown_directions`) here."""
+        return directions
+
     def unknown_poses(self, recording: CalibrationRecording) -> torch.Tensor | None:
         """``f'`` (long): the pose of each unknown-load row where the fit gives a pose's rows one direction; None:
         each row its own."""
@@ -195,7 +200,7 @@ class LinearCalibrator(nn.Module, ABC):
         return calibration_uncertainty(
             self.physical_shape(),
             loads[recording.known],
-            directions,
+            self.information_directions(recording, directions),
             maps,
             self.estimate_offset,
             residual_sum_of_squares=float(torch.linalg.vector_norm(residual)) ** 2,
