@@ -74,9 +74,10 @@ LEARNT_LAWS = ("nonparametric", "harmonic", "uniform", "held_out")
 # harmonic law of degree 0 is the uniform law to the bit, and the uniform one is named.
 HELD_OUT_LAWS = ("uniform", "nonparametric")
 # From this direction SNR (the closed form's, one for the whole recording, of a pose's mean when tied) "held_out"
-# weighs the harmonic law too. bench/crb_ratio.py --laws (10 sessions a row): at SNR 5 and 20 it took the circle's
-# band at SNR 5 from 1.25x the bound to 1.10x and the sphere's hemisphere, band and cone with offsets from 1.22
-# (SNR 5), 1.34 and 1.21x (SNR 20) to 1.15, 0.98 and 1.01x. At SNR 2 the held-out likelihoods of a smooth law
+# weighs the harmonic law too. bench/crb_ratio.py --laws (10 sessions a row), against the choice without it (whose
+# figures there were the nonparametric law's): it took the circle's band at SNR 5 from 1.25x the bound to 1.12x and
+# the sphere's hemisphere, band and cone with offsets from 1.22 (SNR 5), 1.34 and 1.21x (SNR 20) to 1.14, 0.98 and
+# 1.02x. At SNR 2 the held-out likelihoods of a smooth law
 # and a sharp-edged one differ by less than their noise, and where the harmonic law won on a cone it was the
 # worse estimate (circle 1.33x against 1.09x, sphere 1.31x against 1.17x). Set between the two SNRs measured.
 HARMONIC_HELD_OUT_FROM_SNR = 3.5
@@ -817,8 +818,9 @@ class ShapeFromMotion(LinearCalibrator):
 
         A noisy row's argmin direction scatters wider than the true one, most along a weakly spanned axis (a
         band, a cone), so information evaluated there overstates it. bench/crb_ratio.py --laws, 10 sessions a row:
-        the RMS matrix error over the RMS bar on the 2-axis band at SNR 5 went from 2.04 to 1.51 (coverage 0.51
-        to 0.56), on the 3-axis band at SNR 5 from 1.50 to 1.05 (6 sessions), and stayed 0.93 on the uniform circle at SNR 20.
+        the RMS matrix error over the RMS bar on the 2-axis band at SNR 5 went from 2.04 to 1.51, and the bars'
+        68 % coverage from 0.54 to 0.57 there, 0.47 to 0.57 on the 3-axis band at SNR 5, 0.60 to 0.66 on the 2-axis
+        band with offsets (but 0.77 to 0.80 on the 2-axis cone with offsets at SNR 20); unchanged on uniform laws.
         """
         if self.refinement != "marginal":
             return directions
