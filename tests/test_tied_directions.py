@@ -120,3 +120,25 @@ def test_too_few_poses_under_many_labels_point_to_the_groups():
     loads = model.fitted_loads(recording)
     _, warnings, _ = calibration_diagnostics(model, recording, ["a", "b", "c", "d"], loads, model.uncertainty(recording, loads), "gf")
     assert any("only 4 distinct orientations (poses) (the rows of one static interval or data.group_column label" in w for w in warnings), warnings
+
+
+def test_too_few_poses_with_known_loads_still_check_the_known_loads():
+    """A hostile tester's grouped CSV (30 one-row poses in a 10-degree cap, two known-load rows): the pose warning's
+    text had taken over the name of the groups, and the known-load check after it indexed that string (a TypeError
+    traceback). The check's inputs are built directly: the warning, then the known loads judged by their groups."""
+    from sfmnet.eval.goodness_of_fit import PoseEquations, goodness_of_fit
+
+    generator = torch.Generator().manual_seed(0)
+    rows, p = 32, 6
+    known = torch.zeros(rows, dtype=torch.bool)
+    known[-2:] = True
+    known_loads = torch.tensor([[9.81, 0.0, 0.0], [0.0, 9.81, 0.0]], dtype=torch.float64)
+    result = goodness_of_fit(
+        residuals=0.01 * torch.randn(rows, p, generator=generator, dtype=torch.float64),
+        readings=torch.randn(rows, p, generator=generator, dtype=torch.float64),
+        known=known, direction_dims=3, fit_noise=0.01, robust=False, groups=torch.arange(rows),
+        calibrated_known=known_loads + 0.001, known_loads=known_loads,
+        matrix=torch.eye(3, p, dtype=torch.float64), load_unit="N", poses=PoseEquations(7, 9, True),
+    )
+    assert any("only 7 distinct orientations (poses) (the rows of one static interval" in w for w in result.warnings), result.warnings
+    assert "goodness/known_load_ratio" in result.metrics

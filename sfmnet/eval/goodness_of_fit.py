@@ -303,9 +303,9 @@ def goodness_of_fit(
         metrics["goodness/pose_equations"] = float(equations)
         if equations < needed:
             # Tied, a group's rows were given one direction: wrong groups (poses merged) look like few poses.
-            groups = " (the rows of one static interval or data.group_column label share one direction: check them)"
+            check = " (the rows of one static interval or data.group_column label share one direction: check them)"
             warnings.append(
-                f"the rows hold only {equations} distinct orientations (poses){groups if tied else ''} for the {needed} "
+                f"the rows hold only {equations} distinct orientations (poses){check if tied else ''} for the {needed} "
                 f"unknowns of the shape{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: "
                 f"the calibration is not determined by them, however many rows repeat them; record at least {needed} poses "
                 "(dozens give a good calibration)"
