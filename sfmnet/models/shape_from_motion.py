@@ -46,8 +46,9 @@ ROBUST_LOSSES = (None, "huber")
 MARGINAL_BELOW_SNR = 50.0
 # Rows x grid directions beyond which "auto" does not take the marginal: each optimiser evaluation
 # touches every (row, direction) pair, and a fit makes hundreds (measured on 2 cores, 3 axes at SNR 10, with
-# learnt_law=nonparametric: 500 rows 12 s, 2,000 rows 30 s; the held-out choice of law costs more; a hostile tester's 4,400-row stream with its motion rows left in ran
-# for over 6 minutes). 2,500 rows on the sphere, 10,000 on the circle.
+# learnt_law=nonparametric: 500 rows 12 s, 2,000 rows 30 s; the held-out choice of law costs more; a hostile
+# tester's 4,400-row stream with its motion rows left in ran for over 6 minutes). 2,500 rows on the sphere,
+# 10,000 on the circle.
 MARGINAL_MAX_CELLS = 5e6
 # Relative change of [S; o] in one alternation round at which the alternation has converged, as
 # in the streamed fit: below ~1e-9 rounds only creep along the frame, which a few known loads hold weakly.
@@ -77,9 +78,9 @@ HELD_OUT_LAWS = ("uniform", "nonparametric")
 # weighs the harmonic law too. bench/crb_ratio.py --laws (10 sessions a row), against the choice without it (whose
 # figures there were the nonparametric law's): it took the circle's band at SNR 5 from 1.25x the bound to 1.12x and
 # the sphere's hemisphere, band and cone with offsets from 1.22 (SNR 5), 1.34 and 1.21x (SNR 20) to 1.14, 0.98 and
-# 1.02x. At SNR 2 the held-out likelihoods of a smooth law
-# and a sharp-edged one differ by less than their noise, and where the harmonic law won on a cone it was the
-# worse estimate (circle 1.33x against 1.09x, sphere 1.31x against 1.17x). Set between the two SNRs measured.
+# 1.02x. At SNR 2 the held-out likelihoods of a smooth law and a sharp-edged one differ by less than their noise,
+# and where the harmonic law won on a cone it was the worse estimate (circle 1.33x against 1.09x, sphere 1.31x
+# against 1.17x). Set between the two SNRs measured.
 HARMONIC_HELD_OUT_FROM_SNR = 3.5
 # Smoothed EM steps from the uniform law of the nonparametric candidate fitted to one half of the directions.
 HELD_OUT_EM_STEPS = 300
@@ -514,12 +515,26 @@ class ShapeFromMotion(LinearCalibrator):
         configuration = self.row_configuration[index]
         for c in configuration[unknown].unique().tolist():
             rows = unknown & (configuration == c)
-            if not self.tied:
-                yield c, self.grid_log_likelihood(centred[rows], c), centred.new_zeros(())
-                continue
-            means, pose, counts = group_means(centred[rows], self.row_pose[index][rows])
-            scatter = (centred[rows] - means[pose]).pow(2).sum()
-            yield c, counts[:, None].to(means.dtype) * self.grid_log_likelihood(means, c), scatter
+            log_likelihood, _, scatter = self.free_direction_log_likelihoods(
+                centred[rows], self.row_pose[index][rows] if self.tied else None, c
+            )
+            yield c, log_likelihood, scatter
+
+    def free_direction_log_likelihoods(
+        self, centred: torch.Tensor, pose: torch.Tensor | None, configuration: int
+    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """One configuration's rows (``b x p``, offsets removed, dimensionless) as free directions: their grid
+        log-likelihoods (``g x K``), each row's direction (``b``, into the ``g``; None: one per row) and the rows'
+        squared distances from their direction's reading (a scalar), as in :meth:`direction_log_likelihoods`.
+
+        Args:
+            pose: ``b`` (long) labels of the rows' poses when tied, else None.
+        """
+        if pose is None:
+            return self.grid_log_likelihood(centred, configuration), None, centred.new_zeros(())
+        means, index, counts = group_means(centred, pose)
+        scatter = (centred - means[index]).pow(2).sum()
+        return counts[:, None].to(means.dtype) * self.grid_log_likelihood(means, configuration), index, scatter
 
     def smoothed_em_law(
         self,
@@ -832,12 +847,9 @@ class ShapeFromMotion(LinearCalibrator):
         with torch.no_grad():
             for c in configuration.unique().tolist():
                 rows = configuration == c
-                if poses is None:
-                    log_likelihood, index = self.grid_log_likelihood(centred[rows], c), slice(None)
-                else:
-                    means, index, counts = group_means(centred[rows], poses[rows])
-                    log_likelihood = counts[:, None].to(means.dtype) * self.grid_log_likelihood(means, c)
-                estimates[rows] = (torch.softmax(self.log_prior[c] + log_likelihood, dim=1) @ self.grid)[index]
+                log_likelihood, index, _ = self.free_direction_log_likelihoods(centred[rows], None if poses is None else poses[rows], c)
+                means = torch.softmax(self.log_prior[c] + log_likelihood, dim=1) @ self.grid
+                estimates[rows] = means if index is None else means[index]
         return estimates / estimates.norm(dim=1, keepdim=True).clamp_min(torch.finfo(estimates.dtype).tiny)
 
     def unknown_poses(self, recording: CalibrationRecording) -> torch.Tensor | None:
