@@ -88,6 +88,7 @@ def calibration_diagnostics(
         constraint_terms(model, recording),
         osculating_valley(model, recording, uncertainty),
         distinct_poses(model, recording, loads, uncertainty.noise_std),
+        uncertainty.matrix_std,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
