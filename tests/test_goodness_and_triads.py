@@ -285,3 +285,54 @@ def test_error_bars_too_large_for_first_order_theory_are_not_trusted(
     else:
         assert metrics["matrix_std_relative"] < 0.15 and error_over_bars < 1.5
         assert not warned and calibration["error_bars_trustworthy"] is True, calibration["warnings"]
+
+
+def cap_session(seed: int, rows: int, cap_deg: float = 60.0, noise_fraction: float = 0.1) -> tuple[CalibrationRecording, torch.Tensor]:
+    """A random 3 x 6 shape, offsets, directions uniform in a cap around one axis, noise a fraction of the readings' spread."""
+    generator = torch.Generator().manual_seed(seed)
+    shape = torch.randn(3, 6, generator=generator, dtype=torch.float64)
+    height = 1 - (1 - math.cos(math.radians(cap_deg))) * torch.rand(rows, generator=generator, dtype=torch.float64)
+    azimuth = 2 * math.pi * torch.rand(rows, generator=generator, dtype=torch.float64)
+    across = (1 - height**2).sqrt()
+    directions = torch.stack([across * azimuth.cos(), across * azimuth.sin(), height], dim=1)
+    readings = 9.81 * directions @ shape + torch.randn(6, generator=generator, dtype=torch.float64)
+    spread = float(readings.std(dim=0).mean())
+    readings = readings + noise_fraction * spread * torch.randn(rows, 6, generator=generator, dtype=torch.float64)
+    unknown = torch.full((rows, 3), math.nan, dtype=torch.float64)
+    return CalibrationRecording(readings=readings, loads=unknown, magnitude=9.81), calibration_matrix(shape)
+
+
+def aligned_error(model: ShapeFromMotion, truth: torch.Tensor) -> float:
+    """Relative matrix error after the best orthogonal map of the fit's arbitrary frame onto the truth's."""
+    matrix = model.calibration_matrix()
+    u, _, vt = torch.linalg.svd(truth @ matrix.T)
+    return float((u @ vt @ matrix - truth).norm() / truth.norm())
+
+
+def test_a_marginal_fit_far_from_the_alternation_beside_it_is_not_trusted():
+    """A 60-degree cap with offsets at direction SNR 21.5: the marginal comes out 4.3x its bars, the alternation beside it
+    4x nearer, and the two differ by more than twice the bars; on the whole sphere they agree to a fraction of one."""
+    recording, truth = cap_session(2, rows=200)
+    model = fit(recording)
+    uncertainty = model.uncertainty(recording, model.fitted_loads(recording))
+    bars = float(uncertainty.matrix_std.norm() / model.calibration_matrix().norm())
+    assert model.refinement == "marginal" and aligned_error(model, truth) > 3 * bars
+    assert aligned_error(model.alternation_beside(recording), truth) < aligned_error(model, truth) / 3
+    _, warnings, goodness = calibration_diagnostics(model, recording, [f"c{i}" for i in range(6)], model.fitted_loads(recording), uncertainty, "N")
+    assert goodness.metrics["goodness/refinement_disagreement"] > 2 and not goodness.trustworthy
+    assert any("alternation fitted to the same rows differ" in warning for warning in warnings)
+    sphere, truth = cap_session(0, rows=200, cap_deg=180.0, noise_fraction=0.05)
+    model = fit(sphere)
+    uncertainty = model.uncertainty(sphere, model.fitted_loads(sphere))
+    _, _, goodness = calibration_diagnostics(model, sphere, [f"c{i}" for i in range(6)], model.fitted_loads(sphere), uncertainty, "N")
+    assert model.refinement == "marginal" and goodness.metrics["goodness/refinement_disagreement"] < 1
+    assert goodness.trustworthy, goodness.warnings
+
+
+def test_the_alternation_is_fitted_beside_marginal_fits_only_where_its_bias_is_within_its_bars():
+    recording, _ = cap_session(0, rows=60, cap_deg=180.0, noise_fraction=0.3)
+    model = fit(recording)
+    assert model.refinement == "marginal" and model.direction_snr < 10 and model.alternation_beside(recording) is None
+    recording, _ = cap_session(0, rows=60, cap_deg=180.0, noise_fraction=0.005)
+    model = fit(recording)
+    assert model.refinement == "alternation" and model.alternation_beside(recording) is None

@@ -10,6 +10,7 @@ from sfmnet.data.recording import CalibrationRecording
 from sfmnet.eval.goodness_of_fit import GoodnessOfFit, PoseEquations, goodness_of_fit
 from sfmnet.linalg.directions import count_distinct_directions
 from sfmnet.linalg.factorisation import metric_unknowns
+from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, load_error_rms
@@ -89,6 +90,7 @@ def calibration_diagnostics(
         osculating_valley(model, recording, uncertainty),
         distinct_poses(model, recording, loads, uncertainty.noise_std),
         uncertainty.matrix_std,
+        refinement_disagreement(model, recording, uncertainty),
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
@@ -117,6 +119,22 @@ def load_residuals(residuals: torch.Tensor, matrix: torch.Tensor) -> dict[str, f
 def one_constrained_mass(model: LinearCalibrator, recording: CalibrationRecording) -> bool:
     """Whether every unknown row is one constant-magnitude mass (no six-axis configurations) under a constrained model."""
     return recording.direction_maps is None and model.constrained
+
+
+def refinement_disagreement(
+    model: LinearCalibrator, recording: CalibrationRecording, uncertainty: CalibrationUncertainty
+) -> float | None:
+    """How far the alternation fitted beside the model (:meth:`LinearCalibrator.alternation_beside`) lies from it, in
+    its error bars: ``|R C_alt - C|_F / |matrix_std|_F``, ``R`` the orthogonal map that best turns the alternation's frame
+    into the fit's (the frame has its own check, the known loads'). None without one (one constant-magnitude mass only)."""
+    if not one_constrained_mass(model, recording):
+        return None
+    beside = model.alternation_beside(recording)
+    if beside is None or not float(uncertainty.matrix_std.norm()) > 0:
+        return None
+    matrix, other = model.calibration_matrix(), beside.calibration_matrix()
+    turn = orthogonal_procrustes(other.T, matrix.T)
+    return float((turn.T @ other - matrix).norm() / uncertainty.matrix_std.norm())
 
 
 def constraint_terms(model: LinearCalibrator, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor, float] | None:

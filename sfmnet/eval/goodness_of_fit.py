@@ -48,6 +48,13 @@ MAX_VALLEY_BARS_RATIO = 2.5
 # bars on the 42 sessions under 0.15 that passed the other checks (a 43rd, 2.6x, failed one) and 2.0-7.1x on 50 of the
 # 177 over it (4 of them under 0.2).
 MAX_RELATIVE_MATRIX_STD = 0.15
+# The marginal fit and the alternation fitted beside it (from direction SNR 10, where the alternation's bias is within
+# its bars) may differ by this many of the fit's error bars (|matrix_std|_F) before one of them is said to be wrong:
+# past 2, at least one is more than its bars from the truth. Two right estimators on the same rows differ by far less:
+# 0.07-0.17 on 8 uniform spheres at SNR 20 (200 rows, offsets), 0.71 at direction SNR 35. On 60-degree caps with
+# offsets at direction SNR 19-23 (200 rows; tests/test_goodness_and_triads.py's cap_session, seeds 2-7) the 4 marginal
+# fits 2.1-4.5x their bars differed by 2.3-2.9 and the 2 within 1.4x by 0.35-0.45.
+MAX_REFINEMENT_DISAGREEMENT = 2.0
 # Known loads (pose means) may sit this many predicted standard errors from where the calibration puts
 # them (a chi-square tail of ~3e-4 for one known pose in 3 axes).
 MAX_KNOWN_LOAD_RATIO = 2.5
@@ -217,6 +224,7 @@ def goodness_of_fit(
     valley: tuple[ValleyScan, float] | None = None,
     poses: PoseEquations | None = None,
     matrix_std: torch.Tensor | None = None,
+    refinement_disagreement: float | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -242,6 +250,8 @@ def goodness_of_fit(
             to the number needed) and the unknowns of the shape (:func:`~sfmnet.eval.diagnostics.distinct_poses`).
         matrix_std: ``n x p``, the error bars of ``C``: beyond :data:`MAX_RELATIVE_MATRIX_STD` of it, they are not
             believed.
+        refinement_disagreement: a marginal fit's distance from the alternation fitted beside it, in its error bars
+            (:func:`~sfmnet.eval.diagnostics.refinement_disagreement`).
 
     Returns:
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
@@ -253,7 +263,7 @@ def goodness_of_fit(
         (the largest RMS load change, a fraction of ``F``, among calibrations along the valley as likely
         as the fit), ``goodness/valley_bars_ratio`` (that change over the RMS load error the bars
         predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``),
-        ``goodness/pose_equations`` (with ``poses``).
+        ``goodness/pose_equations`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``).
     """
     p = residuals.shape[1]
     metrics: dict[str, float] = {}
@@ -330,6 +340,15 @@ def goodness_of_fit(
                 f"Cramer-Rao bound), which holds only for errors small against the calibration, and past "
                 f"{100 * MAX_RELATIVE_MATRIX_STD:.0f} % the error was measured up to 7x the bars; record more rows or "
                 "poses, or load the sensor more heavily, to bring it down"
+            )
+    if refinement_disagreement is not None:
+        metrics["goodness/refinement_disagreement"] = refinement_disagreement
+        if refinement_disagreement > MAX_REFINEMENT_DISAGREEMENT:
+            warnings.append(
+                f"the marginal refinement and the alternation fitted to the same rows differ by {refinement_disagreement:.1f}x "
+                "the error bars, so at least one of them is wrong beyond its bars (with offsets on part of the sphere "
+                "either can be: README, 'Beyond the table's 96-200 rows'); compare model.refinement=alternation, turn "
+                "the mass through more of the sphere, or give known loads"
             )
     count = int(outliers.sum())
     metrics.update(

@@ -82,6 +82,10 @@ class LinearCalibrator(nn.Module, ABC):
     def fit_mode(self) -> FitMode:
         return FitMode.STEPS
 
+    def alternation_beside(self, recording: CalibrationRecording) -> LinearCalibrator | None:
+        """A second estimator fitted to the same rows, for the diagnostics to compare with this fit; None here."""
+        return None
+
     def prepare_step(self, batch: Batch) -> None:
         """Nothing to do before a step (the marginal refinement overrides this)."""
 

@@ -61,6 +61,9 @@ RUNAWAY_GROWTH = 10.0
 # over the orientation laws of bench/crb_ratio.py --laws it was 0.9-4.9x the Cramer-Rao bound at SNR 5 (and ran
 # away at SNR 2), within 1.6x at SNR 20.
 ALTERNATION_BIASED_BELOW_SNR = 10.0
+# Training steps of the alternation fitted beside a marginal fit (ShapeFromMotion.alternation_beside), as the trainer's
+# default epochs: each is up to alternation_steps rounds, to convergence.
+ALTERNATION_BESIDE_STEPS = 10
 # Smoothed EM steps of the nonparametric distribution of directions per training step of the marginal refinement.
 PRIOR_STEPS = 100
 # Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
@@ -274,6 +277,22 @@ class ShapeFromMotion(LinearCalibrator):
         if self.constrained and self.direction_snr < ALTERNATION_BIASED_BELOW_SNR:
             return [low_snr_warning(self.direction_snr, "set model.refinement=marginal")]
         return []
+
+    def alternation_beside(self, recording: CalibrationRecording) -> ShapeFromMotion | None:
+        """The alternation fitted to the same rows with the same options, beside a marginal fit at a direction SNR where
+        the alternation's own bias is within its bars (from :data:`ALTERNATION_BIASED_BELOW_SNR`); None elsewhere, or
+        where it ran away. It costs a few closed-form rounds, little beside the marginal's."""
+        if self.refinement != "marginal" or self.direction_snr < ALTERNATION_BIASED_BELOW_SNR:
+            return None
+        beside = ShapeFromMotion(
+            rank=self.rank, metric_weight=self.metric_weight, estimate_offset=self.estimate_offset,
+            refinement="alternation", alternation_steps=self.alternation_steps, tie_directions=self.tie_directions,
+        )
+        beside.initialise(recording)
+        batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
+        for _ in range(ALTERNATION_BESIDE_STEPS):
+            beside.alternate(batch)
+        return None if beside.fit_failed else beside
 
     def estimator_description(self) -> dict[str, Any]:
         """The refinement that ran (``auto``'s choice), the SNR it was chosen by, whether the directions were tied
