@@ -156,8 +156,12 @@ def test_a_mirror_hint_picks_the_image_only_where_the_images_differ_in_sign(axis
     hint_load = torch.nn.functional.normalize(torch.tensor([[0.9, 0.1, 0.42]], dtype=torch.float64)) * 9.81
     hint = MirrorHint(sample=0, axis=axis, sign=1)
     if axis == 0:
-        with pytest.raises(SfmnetError, match=r"cannot pick the mirror image: its row's load has sign \+1 on axis 0"):
+        with pytest.raises(SfmnetError, match=r"cannot pick the mirror image: its row's load has sign \+1 on axis 0 \(0-based\)"):
             frame_rotation(known @ rotation.T, known, hint_load @ rotation.T, hint)
+        # The readers pass the user's name for the axis (its load column), and the refusal uses it.
+        named = MirrorHint(sample=0, axis=axis, sign=1, axis_name="fx")
+        with pytest.raises(SfmnetError, match=r"has sign \+1 on axis fx in both images"):
+            frame_rotation(known @ rotation.T, known, hint_load @ rotation.T, named)
     else:
         assert torch.allclose(frame_rotation(known @ rotation.T, known, hint_load @ rotation.T, hint), rotation, atol=1e-12)
 

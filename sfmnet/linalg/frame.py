@@ -19,12 +19,14 @@ class MirrorHint:
 
     The load on sample ``sample`` (an index into the unknown-orientation readings) has a
     component along axis ``axis`` whose sign is ``sign`` (+1 or -1). Any rough knowledge
-    serves: "that pull was roughly towards +y".
+    serves: "that pull was roughly towards +y". ``axis_name``: the user's name for the axis (its load column), for
+    messages.
     """
 
     sample: int
     axis: int
     sign: int
+    axis_name: str | None = None
 
 
 def orthogonal_procrustes(source: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -94,7 +96,7 @@ def frame_rotation(
         normal = ", ".join(f"{value:.2f}" for value in vt[-1].tolist())
         raise SfmnetError(
             f"the mirror hint cannot pick the mirror image: its row's load has sign {math.copysign(1, components[0]):+.0f} "
-            f"on axis {hint.axis} (0-based) in both images ({components[0]:.3g} and {components[1]:.3g}): hint a row "
+            f"on {f'axis {hint.axis_name}' if hint.axis_name else f'axis {hint.axis} (0-based)'} in both images ({components[0]:.3g} and {components[1]:.3g}): hint a row "
             f"whose load points well out of the known loads' span, on the axis it points along most (the direction they "
             f"leave free is ({normal})), or give {n} known loads spanning every axis"
         )

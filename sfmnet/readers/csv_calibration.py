@@ -251,7 +251,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             raise SfmnetError(
                 f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown, in a static interval"
             )
-        return MirrorHint(sample=int(unknown[:row].sum()), axis=axis, sign=sign)
+        return MirrorHint(sample=int(unknown[:row].sum()), axis=axis, sign=sign, axis_name=self.load_columns[axis])
 
 
 def pose_labels(values: np.ndarray) -> np.ndarray:

@@ -145,7 +145,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             raise SfmnetError(
                 f"data.mirror_hint.row {row} must be a data row (0-based) whose load is unknown, in a static interval"
             )
-        recording.mirror_hint = MirrorHint(sample=0, axis=axis, sign=sign)
+        recording.mirror_hint = MirrorHint(sample=0, axis=axis, sign=sign, axis_name=self.load_columns[axis])
         recording.hint_reading = torch.from_numpy(values[recording.channel_index])
 
 
