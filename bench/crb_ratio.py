@@ -23,6 +23,9 @@ truth, the frame aligned). Trials run in ``--processes`` processes of one thread
 
     python bench/crb_ratio.py --laws --trials 50 --processes 2 [--learnt-law harmonic] [--only 3:yes:band:20 ...]
 
+``--samples`` runs sessions of that many rows instead: a bias that does not shrink with rows (README, "Beyond the
+table's 96-200 rows") hides under the variance of the table's small sessions.
+
 ``--true-law`` adds a column before auto's: the marginal given the session's true law of directions on its
 grid, held fixed (:class:`TrueLawMarginal`; not for ``poses``, whose law is its 12 drawn directions). No user
 knows it; the gap between it and the marginal column is what learning the law costs.
@@ -115,9 +118,11 @@ LAW_SENSORS = {2: (FingertipDataModule, {"magnitude": 111.4, "samples": 96}), 3:
 OFFSET_SCALE = 0.1
 
 
-def law_session(n: int, law: str, snr: float, offsets: bool, seed: int):
-    """The simulated session of one ``--laws`` trial, set up."""
+def law_session(n: int, law: str, snr: float, offsets: bool, seed: int, samples: int | None = None):
+    """The simulated session of one ``--laws`` trial, set up (``samples``: rows instead of the table's 96 or 200)."""
     module_cls, kwargs = LAW_SENSORS[n]
+    if samples is not None:
+        kwargs = {**kwargs, "samples": samples}
     datamodule = module_cls(
         noise_fraction=1 / snr, known_loads=0, mirror_hint=False, offset_scale=OFFSET_SCALE if offsets else 0.0,
         orientation_law=law, seed=seed, errors={"angle_error_deg": 0.0}, **kwargs,
@@ -258,10 +263,10 @@ class TrueLawMarginal(ShapeFromMotion):
 def law_trial(args: tuple) -> tuple[float, ...]:
     """Squared shape errors of the closed form, alternation, marginal, (with ``true_law``) the marginal given the true
     law (NaN on ``poses``) and auto, the bound, and auto's coverage counts."""
-    n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law = args
+    n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples = args
     torch.set_num_threads(1)
     warnings.filterwarnings("ignore")
-    datamodule = law_session(n, law, snr, offsets, seed)
+    datamodule = law_session(n, law, snr, offsets, seed, samples)
     recording = datamodule.data.recordings["rotation"]
     if not tie:
         # The poses' labels withheld: every row its own direction.
@@ -292,7 +297,8 @@ def law_trial(args: tuple) -> tuple[float, ...]:
 
 
 def law_table(
-    trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool, true_law: bool
+    trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool, true_law: bool,
+    samples: int | None = None,
 ) -> None:
     """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``)."""
     import multiprocessing
@@ -307,7 +313,9 @@ def law_table(
                     for snr in snrs:
                         if only and f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}" not in only:
                             continue
-                        jobs = [(n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law) for seed in range(trials)]
+                        jobs = [
+                            (n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples) for seed in range(trials)
+                        ]
                         results = torch.tensor(pool.map(law_trial, jobs))
                         *errors, bound, within, entries = results.sum(dim=0)
                         # The true law's column has no figure on poses; a NaN elsewhere is a failed fit and shows as one.
@@ -332,6 +340,7 @@ def main() -> None:
     parser.add_argument("--learnt-law", default=LEARNT_LAW_DEFAULT, choices=LEARNT_LAWS, help="the marginal's law of directions (model.learnt_law)")
     parser.add_argument("--true-law", action="store_true", help="--laws: add the marginal given the true law of directions (see above)")
     parser.add_argument("--only", nargs="+", default=[], help="--laws rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
+    parser.add_argument("--samples", type=int, default=None, help="--laws: rows per session instead of 96 (n = 2) and 200 (n = 3)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     import logging
@@ -340,7 +349,10 @@ def main() -> None:
     torch.set_num_threads(1)
     optimizer_cfg = OmegaConf.load(f"{config_dir()}/optimizer/lbfgs.yaml")
     if args.laws:
-        law_table(args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied, args.true_law)
+        law_table(
+            args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied, args.true_law,
+            args.samples,
+        )
         return
     if args.law_bounds:
         law_bound_table(args.trials, args.snr)
