@@ -18,6 +18,7 @@ from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.eval.diagnostics import calibration_diagnostics
+from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import LearnerModule
 from sfmnet.training.run import train
@@ -305,8 +306,8 @@ def cap_session(seed: int, rows: int, cap_deg: float = 60.0, noise_fraction: flo
 def aligned_error(model: ShapeFromMotion, truth: torch.Tensor) -> float:
     """Relative matrix error after the best orthogonal map of the fit's arbitrary frame onto the truth's."""
     matrix = model.calibration_matrix()
-    u, _, vt = torch.linalg.svd(truth @ matrix.T)
-    return float((u @ vt @ matrix - truth).norm() / truth.norm())
+    turn = orthogonal_procrustes(matrix.T, truth.T)
+    return float((turn.T @ matrix - truth).norm() / truth.norm())
 
 
 def test_a_marginal_fit_far_from_the_alternation_beside_it_is_not_trusted():

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from sfmnet.eval.diagnostics import calibration_diagnostics
+from sfmnet.eval.goodness_of_fit import PoseEquations, goodness_of_fit
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
 from sfmnet.models.shape_from_motion import ShapeFromMotion
@@ -126,8 +127,6 @@ def test_too_few_poses_with_known_loads_still_check_the_known_loads():
     """A hostile tester's grouped CSV (30 one-row poses in a 10-degree cap, two known-load rows): the pose warning's
     text had taken over the name of the groups, and the known-load check after it indexed that string (a TypeError
     traceback). The check's inputs are built directly: the warning, then the known loads judged by their groups."""
-    from sfmnet.eval.goodness_of_fit import PoseEquations, goodness_of_fit
-
     generator = torch.Generator().manual_seed(0)
     rows, p = 32, 6
     known = torch.zeros(rows, dtype=torch.bool)

@@ -130,11 +130,12 @@ def refinement_disagreement(
     if not one_constrained_mass(model, recording):
         return None
     beside = model.alternation_beside(recording)
-    if beside is None or not float(uncertainty.matrix_std.norm()) > 0:
+    bars = float(uncertainty.matrix_std.norm())
+    if beside is None or not bars > 0:
         return None
     matrix, other = model.calibration_matrix(), beside.calibration_matrix()
     turn = orthogonal_procrustes(other.T, matrix.T)
-    return float((turn.T @ other - matrix).norm() / uncertainty.matrix_std.norm())
+    return float((turn.T @ other - matrix).norm()) / bars
 
 
 def constraint_terms(model: LinearCalibrator, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor, float] | None:

@@ -25,6 +25,7 @@ import torch
 
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
+from sfmnet.linalg.uncertainty import relative_matrix_std
 # The fit's residual noise may exceed the within-pose noise by this much before the model is
 # said not to describe the data (it is ~1 for a model that fits, whatever p and n).
 MAX_NOISE_RATIO = 1.5
@@ -333,7 +334,7 @@ def goodness_of_fit(
                 "(dozens give a good calibration)"
             )
     if matrix_std is not None:
-        relative = float(matrix_std.norm() / matrix.norm())
+        relative = relative_matrix_std(matrix_std, matrix)
         if relative > MAX_RELATIVE_MATRIX_STD:
             warnings.append(
                 f"the matrix standard error is {100 * relative:.0f} % of the matrix: error bars are first order (the "

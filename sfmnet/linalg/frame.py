@@ -94,9 +94,10 @@ def frame_rotation(
     agrees = [component * hint.sign > 0 for component in components]
     if agrees[0] == agrees[1]:
         normal = ", ".join(f"{value:.2f}" for value in vt[-1].tolist())
+        axis = hint.axis_name or f"{hint.axis} (0-based)"
         raise SfmnetError(
             f"the mirror hint cannot pick the mirror image: its row's load has sign {math.copysign(1, components[0]):+.0f} "
-            f"on {f'axis {hint.axis_name}' if hint.axis_name else f'axis {hint.axis} (0-based)'} in both images ({components[0]:.3g} and {components[1]:.3g}): hint a row "
+            f"on axis {axis} in both images ({components[0]:.3g} and {components[1]:.3g}): hint a row "
             f"whose load points well out of the known loads' span, on the axis it points along most (the direction they "
             f"leave free is ({normal})), or give {n} known loads spanning every axis"
         )

@@ -193,6 +193,11 @@ def calibration_uncertainty(
     )
 
 
+def relative_matrix_std(matrix_std: torch.Tensor, matrix: torch.Tensor) -> float:
+    """The calibration matrix's standard error relative to the matrix: ``|matrix_std|_F / |C|_F`` (both ``n x p``)."""
+    return float(matrix_std.norm() / matrix.norm())
+
+
 def load_error_rms(
     shape: torch.Tensor, matrix: torch.Tensor, uncertainty: CalibrationUncertainty, magnitude: float
 ) -> float:

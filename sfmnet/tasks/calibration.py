@@ -23,6 +23,7 @@ from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import method_title, motion_figure, spectrum_figure
 from sfmnet.eval.held_out import load_errors, magnitude_errors
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
+from sfmnet.linalg.uncertainty import relative_matrix_std
 from sfmnet.models.linear_calibrator import LinearCalibrator
 from sfmnet.tasks.base import FittedMethod, MethodResult, Task
 from sfmnet.training.components import build_logger, publish_figure
@@ -83,7 +84,7 @@ class CalibrationTask(Task):
             "residual_rms": calibration.residual_rms,
             "error_bars_trustworthy": float(trustworthy),
             "noise_std": uncertainty.noise_std,
-            "matrix_std_relative": float(uncertainty.matrix_std.norm() / calibration.matrix.norm()),
+            "matrix_std_relative": relative_matrix_std(uncertainty.matrix_std, calibration.matrix),
             "fit_seconds": fitted.seconds,
             "epochs": float(fitted.trainer.current_epoch),
             **diagnostics,
