@@ -26,6 +26,10 @@ truth, the frame aligned). Trials run in ``--processes`` processes of one thread
 ``--samples`` runs sessions of that many rows instead: a bias that does not shrink with rows (README, "Beyond the
 table's 96-200 rows") hides under the variance of the table's small sessions.
 
+``--p-equals-n`` simulates sensors with as many channels as axes (a 2-gauge fingertip, a 3-channel force sensor: the
+algebra of an accelerometer or magnetometer), where no subspace lies outside the load space and the noise and the
+error bars rest on the constraint residuals alone.
+
 ``--true-law`` adds a column before auto's: the marginal given the session's true law of directions on its
 grid, held fixed (:class:`TrueLawMarginal`; not for ``poses``, whose law is its 12 drawn directions). No user
 knows it; the gap between it and the marginal column is what learning the law costs.
@@ -118,11 +122,16 @@ LAW_SENSORS = {2: (FingertipDataModule, {"magnitude": 111.4, "samples": 96}), 3:
 OFFSET_SCALE = 0.1
 
 
-def law_session(n: int, law: str, snr: float, offsets: bool, seed: int, samples: int | None = None):
-    """The simulated session of one ``--laws`` trial, set up (``samples``: rows instead of the table's 96 or 200)."""
+def law_session(
+    n: int, law: str, snr: float, offsets: bool, seed: int, samples: int | None = None, p_equals_n: bool = False
+):
+    """The simulated session of one ``--laws`` trial, set up (``samples``: rows instead of the table's 96 or 200;
+    ``p_equals_n``: ``n`` channels instead of 4 or 6)."""
     module_cls, kwargs = LAW_SENSORS[n]
     if samples is not None:
         kwargs = {**kwargs, "samples": samples}
+    if p_equals_n:
+        kwargs = {**kwargs, "channels": n}
     datamodule = module_cls(
         noise_fraction=1 / snr, known_loads=0, mirror_hint=False, offset_scale=OFFSET_SCALE if offsets else 0.0,
         orientation_law=law, seed=seed, errors={"angle_error_deg": 0.0}, **kwargs,
@@ -263,10 +272,10 @@ class TrueLawMarginal(ShapeFromMotion):
 def law_trial(args: tuple) -> tuple[float, ...]:
     """Squared shape errors of the closed form, alternation, marginal, (with ``true_law``) the marginal given the true
     law (NaN on ``poses``) and auto, the bound, and auto's coverage counts."""
-    n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples = args
+    n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n = args
     torch.set_num_threads(1)
     warnings.filterwarnings("ignore")
-    datamodule = law_session(n, law, snr, offsets, seed, samples)
+    datamodule = law_session(n, law, snr, offsets, seed, samples, p_equals_n)
     recording = datamodule.data.recordings["rotation"]
     if not tie:
         # The poses' labels withheld: every row its own direction.
@@ -298,7 +307,7 @@ def law_trial(args: tuple) -> tuple[float, ...]:
 
 def law_table(
     trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool, true_law: bool,
-    samples: int | None = None,
+    samples: int | None = None, p_equals_n: bool = False,
 ) -> None:
     """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``)."""
     import multiprocessing
@@ -314,7 +323,8 @@ def law_table(
                         if only and f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}" not in only:
                             continue
                         jobs = [
-                            (n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples) for seed in range(trials)
+                            (n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n)
+                            for seed in range(trials)
                         ]
                         results = torch.tensor(pool.map(law_trial, jobs))
                         *errors, bound, within, entries = results.sum(dim=0)
@@ -341,6 +351,7 @@ def main() -> None:
     parser.add_argument("--true-law", action="store_true", help="--laws: add the marginal given the true law of directions (see above)")
     parser.add_argument("--only", nargs="+", default=[], help="--laws rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
     parser.add_argument("--samples", type=int, default=None, help="--laws: rows per session instead of 96 (n = 2) and 200 (n = 3)")
+    parser.add_argument("--p-equals-n", action="store_true", help="--laws: as many channels as axes (see above)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     import logging
@@ -351,7 +362,7 @@ def main() -> None:
     if args.laws:
         law_table(
             args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied, args.true_law,
-            args.samples,
+            args.samples, args.p_equals_n,
         )
         return
     if args.law_bounds:

@@ -3,6 +3,7 @@ calibration without known loads, and the real accelerometer stream."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -237,14 +238,15 @@ def test_auto_says_when_a_long_low_snr_session_is_too_big_for_the_marginal():
     assert model.refinement == "marginal" and not model.fit_warnings
 
 
-def held_poses(seed: int, poses: int, rows: int = 1200) -> CalibrationRecording:
-    """6 channels, 3 axes, offsets: ``poses`` random orientations, each held for ``rows / poses`` rows, noise 1 %."""
+def held_poses(seed: int, poses: int, rows: int = 1200, noise: float = 0.01) -> CalibrationRecording:
+    """6 channels, 3 axes, offsets: ``poses`` random orientations, each held for ``rows / poses`` rows, ``noise`` a fraction
+    of the readings' spread."""
     rng = np.random.default_rng(seed)
     shape = rng.normal(size=(3, 6))
     directions = rng.normal(size=(poses, 3))
     directions = np.repeat(directions / np.linalg.norm(directions, axis=1, keepdims=True), rows // poses, axis=0)
     clean = 9.81 * directions @ shape + rng.normal(size=6)
-    readings = clean + 0.01 * clean.std() * rng.normal(size=clean.shape)
+    readings = clean + noise * clean.std() * rng.normal(size=clean.shape)
     return CalibrationRecording(readings=torch.from_numpy(readings), loads=torch.full((len(readings), 3), math.nan, dtype=torch.float64), magnitude=9.81)
 
 
@@ -337,3 +339,32 @@ def test_the_alternation_is_fitted_beside_marginal_fits_only_where_its_bias_is_w
     recording, _ = cap_session(0, rows=60, cap_deg=180.0, noise_fraction=0.005)
     model = fit(recording)
     assert model.refinement == "alternation" and model.alternation_beside(recording) is None
+
+
+def pose_check(recording: CalibrationRecording, **model_options) -> tuple[ShapeFromMotion, list[str], dict[str, float]]:
+    """The fit's warnings and goodness metrics (6 channels)."""
+    model = fit(recording, **model_options)
+    loads = model.fitted_loads(recording)
+    _, warnings, goodness = calibration_diagnostics(model, recording, [f"c{i}" for i in range(6)], loads, model.uncertainty(recording, loads), "N")
+    return model, warnings, goodness
+
+
+def test_untied_rows_held_at_too_few_poses_for_their_error_bars_are_flagged():
+    """10 poses x 60 rows for 9 unknowns at 10 % noise, each row's direction fitted on its own (auto: the marginal): the
+    bars come out too small (seeds 0-5: 3.9, 0.7, 0.7, 1.4, 3.2 and 2.7x them, RMS 2.4; this is seed 0), and the check
+    fired on all six; the same rows tied to their poses, 20 poses, or a continuous 60-degree cap pass."""
+    recording = held_poses(0, 10, rows=600, noise=0.1)
+    model, warnings, goodness = pose_check(recording)
+    bars = float(model.uncertainty(recording, model.fitted_loads(recording)).matrix_std.norm() / model.calibration_matrix().norm())
+    truth = calibration_matrix(torch.from_numpy(np.random.default_rng(0).normal(size=(3, 6))))
+    assert aligned_error(model, truth) > 3 * bars
+    assert any("held at only 10 orientations" in w for w in warnings) and not goodness.trustworthy
+    assert goodness.metrics["goodness/pose_scatter_ratio"] < 1
+    pose = torch.arange(len(recording.readings)) // 60
+    _, warnings, _ = pose_check(dataclasses.replace(recording, groups=pose))
+    assert not any("held at only" in w for w in warnings), warnings
+    _, warnings, goodness = pose_check(held_poses(0, 20, rows=600, noise=0.1))
+    assert not any("held at only" in w for w in warnings), warnings
+    cap, _ = cap_session(0, rows=400, noise_fraction=0.05)
+    _, warnings, goodness = pose_check(cap, refinement="alternation")
+    assert not any("held at only" in w for w in warnings), warnings

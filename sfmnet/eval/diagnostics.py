@@ -7,8 +7,8 @@ import math
 import torch
 
 from sfmnet.data.recording import CalibrationRecording
-from sfmnet.eval.goodness_of_fit import GoodnessOfFit, PoseEquations, goodness_of_fit
-from sfmnet.linalg.directions import count_distinct_directions
+from sfmnet.eval.goodness_of_fit import GoodnessOfFit, PoseEquations, goodness_of_fit, untied_extra_poses
+from sfmnet.linalg.directions import distinct_directions, median_angle_from_poses
 from sfmnet.linalg.factorisation import metric_unknowns
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
@@ -196,21 +196,32 @@ MAX_POSE_TOLERANCE = 0.3
 def distinct_poses(
     model: LinearCalibrator, recording: CalibrationRecording, loads: torch.Tensor, noise_std: float
 ) -> PoseEquations | None:
-    """How many equations of the metric constraint the rows' poses give, and how many it needs.
+    """How many equations of the metric constraint the rows' poses give, how many it needs, and whether the rows
+    sit at their poses.
 
     Rows held in one orientation repeat one equation ``|m| = F``: only distinct directions count
-    (:func:`~sfmnet.linalg.directions.count_distinct_directions`, within ``POSE_NOISE_SIGMAS`` of a
+    (:func:`~sfmnet.linalg.directions.distinct_directions`, within ``POSE_NOISE_SIGMAS`` of a
     direction's noise ``s |C|_F sqrt((n-1)/n) / F``), and a distinct known load gives ``n``. Where
     they number fewer than ``n(n+1)/2 (+ n)`` (:func:`~sfmnet.linalg.factorisation.metric_unknowns`)
-    the shape is not determined, however many rows repeat them. One constant-magnitude mass only.
+    the shape is not determined, however many rows repeat them. Fitted row by row (untied), the error bars
+    need ``n(n+1)/2`` more (:func:`~sfmnet.eval.goodness_of_fit.untied_extra_poses`): where fewer are found, the
+    rows' median angle from their pose's mean (:func:`~sfmnet.linalg.directions.median_angle_from_poses`) over a
+    direction's RMS noise says whether they were held there (about 0.8) or sweep between them. One constant-magnitude
+    mass only.
     """
     if not one_constrained_mass(model, recording):
         return None
     n, magnitude = recording.rank, recording.magnitude
     needed = metric_unknowns(n, model.estimate_offset)
+    tied = model.unknown_poses(recording) is not None
+    enough = needed if tied else needed + untied_extra_poses(n)
     known = recording.known
     angle = noise_std * float(model.calibration_matrix().norm()) * math.sqrt((n - 1) / n) / magnitude
     tolerance = min(POSE_NOISE_SIGMAS * angle, MAX_POSE_TOLERANCE)
     directions = loads[~known] / loads[~known].norm(dim=1, keepdim=True)
-    equations = count_distinct_directions(directions, tolerance, needed) + n * recording.distinct_known_loads
-    return PoseEquations(equations, needed, model.unknown_poses(recording) is not None)
+    leaders = distinct_directions(directions, tolerance, enough)
+    scatter = float("nan")
+    if 0 < len(leaders) < enough and angle > 0:
+        scatter = median_angle_from_poses(directions, leaders) / angle
+    equations = len(leaders) + n * recording.distinct_known_loads
+    return PoseEquations(equations, needed, tied, scatter)

@@ -61,13 +61,33 @@ MAX_REFINEMENT_DISAGREEMENT = 2.0
 MAX_KNOWN_LOAD_RATIO = 2.5
 
 
+# Fitted row by row (untied directions), rows held at few poses leave the error bars too small until the poses
+# outnumber the shape's unknowns by the metric's own n(n+1)/2 (alternation, 60 rows a pose, random poses and shapes,
+# 12 sessions each: 3 axes with offsets, 9 unknowns, at 10 % noise 9-12 poses 4.0-1.7x the bars RMS, 15-30 poses
+# 0.96-1.07x; 3 axes tared, 6 unknowns, 6 poses 3.4x, 8-10 poses 1.5x, 12 poses 1.1x; 2 axes with offsets, 5
+# unknowns, 5-6 poses 5.0-1.4x, 8-15 poses 0.9-1.1x). Tied to their poses the bars held from the unknowns' count
+# (9 poses 0.8x, 10-20 poses 0.9-1.2x).
+def untied_extra_poses(n: int) -> int:
+    """The poses beyond the shape's unknowns that untied error bars need, for ``n`` load axes: ``n(n+1)/2``."""
+    return n * (n + 1) // 2
+
+
+# Rows whose median angle from their pose's mean is within this many times one direction's RMS noise were held at their
+# poses rather than swept between them: 0.5-0.9 on 3-axis sessions of 10-12 held poses at 1-10 % noise, 2.0-2.9 on a
+# hostile tester's continuous arcs and pairs of caps that counted under the poses needed.
+MAX_HELD_POSE_SCATTER = 1.5
+
+
 class PoseEquations(NamedTuple):
-    """The equations ``|m| = F`` the rows' distinct poses give (counted up to ``needed``), the shape's unknowns
-    (``needed``), and whether the fit tied each group's rows to one direction (then a group is one pose)."""
+    """The equations ``|m| = F`` the rows' distinct poses give (counted up to ``needed``, untied up to ``needed +``
+    :func:`untied_extra_poses`), the shape's unknowns (``needed``), whether the fit tied each group's rows to one
+    direction (then a group is one pose), and, where fewer poses were found than counted up to, the rows' median angle
+    from their pose's mean over one direction's RMS noise (NaN elsewhere)."""
 
     equations: int
     needed: int
     tied: bool
+    scatter: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -248,7 +268,9 @@ def goodness_of_fit(
             (:func:`~sfmnet.linalg.osculating_valley.valley_scan`) and the RMS load error (a fraction of
             ``F``) the error bars predict (:func:`~sfmnet.linalg.uncertainty.load_error_rms`).
         poses: with one constant magnitude, the equations the rows' distinct poses give (counted up
-            to the number needed) and the unknowns of the shape (:func:`~sfmnet.eval.diagnostics.distinct_poses`).
+            to the number needed), the unknowns of the shape and how closely the rows sit at their poses
+            (:func:`~sfmnet.eval.diagnostics.distinct_poses`): too few for the unknowns, or for untied error bars
+            (:func:`untied_extra_poses` more) where the rows were held at them, fail.
         matrix_std: ``n x p``, the error bars of ``C``: beyond :data:`MAX_RELATIVE_MATRIX_STD` of it, they are not
             believed.
         refinement_disagreement: a marginal fit's distance from the alternation fitted beside it, in its error bars
@@ -264,7 +286,8 @@ def goodness_of_fit(
         (the largest RMS load change, a fraction of ``F``, among calibrations along the valley as likely
         as the fit), ``goodness/valley_bars_ratio`` (that change over the RMS load error the bars
         predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``),
-        ``goodness/pose_equations`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``).
+        ``goodness/pose_equations`` and, where fewer poses were found than counted up to,
+        ``goodness/pose_scatter_ratio`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``).
     """
     p = residuals.shape[1]
     metrics: dict[str, float] = {}
@@ -322,8 +345,11 @@ def goodness_of_fit(
                 "or give known loads"
             )
     if poses is not None:
-        equations, needed, tied = poses
+        equations, needed, tied, scatter = poses
         metrics["goodness/pose_equations"] = float(equations)
+        if math.isfinite(scatter):
+            metrics["goodness/pose_scatter_ratio"] = scatter
+        untied_needed = needed + untied_extra_poses(matrix.shape[0])
         if equations < needed:
             # Tied, a group's rows were given one direction: wrong groups (poses merged) look like few poses.
             check = " (the rows of one static interval or data.group_column label share one direction: check them)"
@@ -332,6 +358,12 @@ def goodness_of_fit(
                 f"unknowns of the shape{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: "
                 f"the calibration is not determined by them, however many rows repeat them; record at least {needed} poses "
                 "(dozens give a good calibration)"
+            )
+        elif not tied and equations < untied_needed and scatter <= MAX_HELD_POSE_SCATTER:
+            warnings.append(
+                f"the rows were held at only {equations} orientations (poses) and each row's direction was fitted on its "
+                f"own: with fewer than {untied_needed} poses such error bars come out too small; give data.group_column "
+                "the pose each row was held in (or a time column, whose static intervals tie them), or record more poses"
             )
     if matrix_std is not None:
         relative = relative_matrix_std(matrix_std, matrix)

@@ -25,8 +25,8 @@ def direction_grid(dims: int, count: int) -> torch.Tensor:
     return torch.stack([radius * azimuth.cos(), radius * azimuth.sin(), z], dim=1)
 
 
-def count_distinct_directions(directions: torch.Tensor, tolerance: float, enough: int) -> int:
-    """How many distinct directions (poses) the unit rows hold, counted up to ``enough``.
+def distinct_directions(directions: torch.Tensor, tolerance: float, enough: int) -> torch.Tensor:
+    """The distinct directions (poses) the unit rows hold, up to ``enough`` of them: ``k x d``, ``k <= enough``.
 
     Greedy leader clustering: the first row no pose found so far holds (within ``tolerance``
     radians) starts a new one. Stops at ``enough`` poses: ``f x enough^2`` work at most.
@@ -39,4 +39,23 @@ def count_distinct_directions(directions: torch.Tensor, tolerance: float, enough
     while len(remaining) and len(leaders) < enough:
         leaders = torch.cat([leaders, remaining[:1]])
         remaining = remaining[remaining @ remaining[0] < cosine]
-    return len(leaders)
+    return leaders
+
+
+def count_distinct_directions(directions: torch.Tensor, tolerance: float, enough: int) -> int:
+    """How many distinct directions (poses) the unit rows hold, counted up to ``enough`` (:func:`distinct_directions`)."""
+    return len(distinct_directions(directions, tolerance, enough))
+
+
+def median_angle_from_poses(directions: torch.Tensor, leaders: torch.Tensor) -> float:
+    """Median angle (radians) of the unit rows (``f x d``) from the mean direction of the pose they are nearest
+    (``leaders``, ``k x d``, from :func:`distinct_directions`): below one direction's RMS noise where the rows were
+    held at those poses, nearer the poses' spacing where they sweep between them. The median, so that two poses
+    closer than the clustering's tolerance, taken for one, leave the rest of the poses to say it."""
+    pose = (directions @ leaders.T).argmax(dim=1)
+    means = torch.zeros_like(leaders).index_add_(0, pose, directions)
+    means = means / means.norm(dim=1, keepdim=True)
+    cosine = (directions * means[pose]).sum(dim=1)
+    # atan2 of the off-pose part: acos loses the small angles held poses have.
+    sine = (directions - cosine[:, None] * means[pose]).norm(dim=1)
+    return float(torch.atan2(sine, cosine).median())
