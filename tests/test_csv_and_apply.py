@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from sfmnet.apply import apply_calibration
+from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
@@ -189,3 +190,14 @@ def test_apply_refuses_bad_calibration_files(tmp_path: Path, content: str, messa
 def test_apply_refuses_missing_calibration(tmp_path: Path):
     with pytest.raises(SfmnetError, match="does not exist"):
         apply_calibration(tmp_path / "none.json", tmp_path / "in.csv", tmp_path / "out.csv", overwrite=False)
+
+
+def test_trustworthy_bars_beside_warnings_say_the_warnings_are_not_about_them():
+    """A coverage or rank-gap warning under "trustworthy" read as a contradiction to a hostile tester."""
+    metrics = {"residual_rms": 0.01, "error_bars_trustworthy": 1.0}
+    quiet = trust_lines(metrics, ["a", "b", "c"], "N", 9.81, 3)
+    warned = trust_lines(metrics, ["a", "b", "c"], "N", 9.81, 3, warnings=2)
+    assert quiet[-1].strip() == "error bars   trustworthy: every goodness-of-fit check passed"
+    assert "the 2 warnings below: about the data or the estimator chosen, not the bars" in warned[-1]
+    disowned = trust_lines({**metrics, "error_bars_trustworthy": 0.0}, ["a", "b", "c"], "N", 9.81, 3, warnings=1)
+    assert "NOT TRUSTWORTHY" in disowned[-1] and "not the bars" not in disowned[-1]

@@ -23,6 +23,7 @@ def trust_lines(
     magnitude: float,
     axes: int,
     estimator: dict[str, Any] | None = None,
+    warnings: int = 0,
 ) -> list[str]:
     """Indented lines: channels, the refinement, coverage, residuals (load and raw units), known loads, error bars.
 
@@ -32,6 +33,8 @@ def trust_lines(
         magnitude: ``F``, the calibration load's constant magnitude (load units); NaN where there is none.
         axes: ``n``, the load axes.
         estimator: the calibration file's account of the refinement (``refinement``, ``direction_snr``, ...).
+        warnings: how many warnings follow the lines: with trustworthy bars they are about the data (coverage,
+            rank gap) or the fit's choices, which the line says so that they do not read as the bars' failure.
     """
     force_unit, _, torque_unit = load_unit.partition(", ")
     lines = [f"channels     {channel_list(channels)}"]
@@ -60,7 +63,10 @@ def trust_lines(
     else:
         lines.append("known loads  none given: the load frame is arbitrary (magnitudes are right)")
     if metrics.get("error_bars_trustworthy", 1.0):
-        lines.append("error bars   trustworthy: every goodness-of-fit check passed")
+        caveat = ""
+        if warnings:
+            caveat = f"; the {warnings} warning{'s' if warnings > 1 else ''} below: about the data or the estimator chosen, not the bars"
+        lines.append(f"error bars   trustworthy: every goodness-of-fit check passed{caveat}")
     else:
         lines.append("error bars   NOT TRUSTWORTHY: a goodness-of-fit check or the fit failed (the warnings say which)")
     return [f"    {line}" for line in lines]

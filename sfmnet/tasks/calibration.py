@@ -147,7 +147,7 @@ class CalibrationTask(Task):
                 lines.extend(
                     trust_lines(
                         result.metrics, data.channels, data.load_unit, recording.magnitude, recording.rank,
-                        result.result.extra,
+                        result.result.extra, len(result.warnings),
                     )
                 )
             elif not result.metrics.get("error_bars_trustworthy", 1.0):
