@@ -62,11 +62,10 @@ MAX_KNOWN_LOAD_RATIO = 2.5
 
 
 # Fitted row by row (untied directions), rows held at few poses leave the error bars too small until the poses
-# outnumber the shape's unknowns by the metric's own n(n+1)/2 (alternation, 60 rows a pose, random poses and shapes,
-# 12 sessions each: 3 axes with offsets, 9 unknowns, at 10 % noise 9-12 poses 4.0-1.7x the bars RMS, 15-30 poses
-# 0.96-1.07x; 3 axes tared, 6 unknowns, 6 poses 3.4x, 8-10 poses 1.5x, 12 poses 1.1x; 2 axes with offsets, 5
-# unknowns, 5-6 poses 5.0-1.4x, 8-15 poses 0.9-1.1x). Tied to their poses the bars held from the unknowns' count
-# (9 poses 0.8x, 10-20 poses 0.9-1.2x).
+# outnumber the shape's unknowns by the metric's own n(n+1)/2 (bench/untied_poses.py: 12 random sessions a row, 60 rows
+# a pose; 3 axes with offsets, 9 unknowns, at 10 % noise 9-12 poses 2.8-1.4x the bars RMS, 15-30 poses 0.97-1.17x; 3
+# axes tared, 6 unknowns, 6 poses 3.2x, 8-10 poses 1.3-1.4x, 12 poses 1.1x; 2 axes with offsets, 5 unknowns, 5-6 poses
+# 3.7-11x, 8-15 poses 0.9-1.0x). Tied to their poses the bars held from the unknowns' count on 3 axes (0.85-1.15x).
 def untied_extra_poses(n: int) -> int:
     """The poses beyond the shape's unknowns that untied error bars need, for ``n`` load axes: ``n(n+1)/2``."""
     return n * (n + 1) // 2
