@@ -19,7 +19,9 @@ group so a pose's rows share one direction; ``--untied`` withholds it) at each S
 with offsets (``offset_scale`` 0.1, estimated, the bound with offsets), no known loads. Columns: the
 closed form, the alternation, the marginal likelihood and auto against the bound, and the coverage of
 auto's error bars (fraction of calibration-matrix entries within one reported standard error of the
-truth, the frame aligned). Trials run in ``--processes`` processes of one thread each:
+truth, the frame aligned); then the fraction of sessions whose bars a calibration run calls trustworthy (every
+goodness-of-fit check passed, :func:`~sfmnet.eval.diagnostics.calibration_diagnostics`) and the coverage of
+those bars alone (what a user is told to believe). Trials run in ``--processes`` processes of one thread each:
 
     python bench/crb_ratio.py --laws --trials 50 --processes 2 [--learnt-law harmonic] [--only 3:yes:band:20 ...]
 
@@ -62,6 +64,7 @@ from omegaconf import OmegaConf
 from sfmnet.cli import config_dir
 from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
 from sfmnet.simulators.simulation import circle_arc, oriented_directions, sphere_zone
+from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.linalg.frame import orthogonal_procrustes, skew_generators
 from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
 from sfmnet.models.shape_from_motion import LEARNT_LAWS, ShapeFromMotion
@@ -271,7 +274,8 @@ class TrueLawMarginal(ShapeFromMotion):
 
 def law_trial(args: tuple) -> tuple[float, ...]:
     """Squared shape errors of the closed form, alternation, marginal, (with ``true_law``) the marginal given the true
-    law (NaN on ``poses``) and auto, the bound, and auto's coverage counts."""
+    law (NaN on ``poses``) and auto, the bound, auto's coverage counts, and whether its bars are trusted (with those counts
+    again where they are)."""
     n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n = args
     torch.set_num_threads(1)
     warnings.filterwarnings("ignore")
@@ -291,10 +295,16 @@ def law_trial(args: tuple) -> tuple[float, ...]:
     chooser.initialise(recording)
     auto = fitted[chooser.refinement]
     alignment = orthogonal_procrustes(auto.physical_shape().T, truth.T).T
-    bars = auto.uncertainty(recording, auto.fitted_loads(recording)).matrix_std
+    loads = auto.fitted_loads(recording)
+    uncertainty = auto.uncertainty(recording, loads)
+    bars = uncertainty.matrix_std
     # The bars are in the fit's own frame, so the truth is turned into it (C = pinv(S)^T turns as S does);
     # turning the fit instead mixes the rows of C, whose bars differ.
     within = ((auto.calibration_matrix() - alignment.T @ datamodule.data.truth.matrix).abs() < bars).sum()
+    # Whether a calibration run would call these bars trustworthy (every goodness-of-fit check passed, the fit sound).
+    channels = [f"c{i}" for i in range(recording.readings.shape[1])]
+    _, _, goodness = calibration_diagnostics(auto, recording, channels, loads, uncertainty, "N")
+    trusted = float(goodness.trustworthy and not auto.fit_failed)
     errors = [error2(model.physical_shape(), truth, align=True) for model in fitted.values()]
     if true_law:
         known = float("nan")
@@ -302,7 +312,8 @@ def law_trial(args: tuple) -> tuple[float, ...]:
             model = refine_in_process(TrueLawMarginal(law, truth, offsets), recording, instantiate(optimizer_cfg))
             known = error2(model.physical_shape(), truth, align=True)
         errors.append(known)
-    return closed_form, *errors, errors[list(fitted).index(chooser.refinement)], bound, float(within), float(bars.numel())
+    auto_error = errors[list(fitted).index(chooser.refinement)]
+    return closed_form, *errors, auto_error, bound, float(within), float(bars.numel()), trusted, trusted * float(within), trusted * float(bars.numel())
 
 
 def law_table(
@@ -313,8 +324,9 @@ def law_table(
     import multiprocessing
 
     columns = ["closed form", "alternation", "marginal", *(["marginal, true law"] if true_law else []), "auto"]
-    print("| n | offsets | law | SNR | " + " | ".join(f"{c} / CRB" for c in columns) + " | auto 68 % coverage |")
-    print("|---|---|---|---|" + "---|" * (len(columns) + 1))
+    print("| n | offsets | law | SNR | " + " | ".join(f"{c} / CRB" for c in columns)
+          + " | auto 68 % coverage | trusted | coverage of trusted bars |")
+    print("|---|---|---|---|" + "---|" * (len(columns) + 3))
     with multiprocessing.get_context("spawn").Pool(processes) as pool:
         for n in (2, 3):
             for offsets in (False, True):
@@ -327,14 +339,19 @@ def law_table(
                             for seed in range(trials)
                         ]
                         results = torch.tensor(pool.map(law_trial, jobs))
-                        *errors, bound, within, entries = results.sum(dim=0)
+                        *errors, bound, within, entries, trusted, trusted_within, trusted_entries = results.sum(dim=0)
                         # The true law's column has no figure on poses; a NaN elsewhere is a failed fit and shows as one.
                         cells = [f"{float((e / bound).sqrt()):.2f}" for e in errors]
                         if true_law and law == "poses":
                             cells[3] = "-"
                         ratios = " | ".join(cells)
                         coverage = float(within / entries)
-                        print(f"| {n} | {'yes' if offsets else 'no'} | {law} | {snr:g} | {ratios} | {coverage:.2f} |", flush=True)
+                        trusted_coverage = f"{float(trusted_within / trusted_entries):.2f}" if trusted > 0 else "-"
+                        print(
+                            f"| {n} | {'yes' if offsets else 'no'} | {law} | {snr:g} | {ratios} | {coverage:.2f} | "
+                            f"{float(trusted) / trials:.1f} | {trusted_coverage} |",
+                            flush=True,
+                        )
 
 
 def main() -> None:
