@@ -33,8 +33,8 @@ def trust_lines(
         magnitude: ``F``, the calibration load's constant magnitude (load units); NaN where there is none.
         axes: ``n``, the load axes.
         estimator: the calibration file's account of the refinement (``refinement``, ``direction_snr``, ...).
-        warnings: how many warnings follow the lines: with trustworthy bars they are about the data (coverage,
-            rank gap) or the fit's choices, which the line says so that they do not read as the bars' failure.
+        warnings: how many warnings follow the lines; with trustworthy bars the line says they are about the data
+            (coverage, rank gap) or the estimator chosen, not the bars.
     """
     force_unit, _, torque_unit = load_unit.partition(", ")
     lines = [f"channels     {channel_list(channels)}"]

@@ -1,4 +1,4 @@
-"""Unit directions spread evenly: the marginal likelihood's quadrature grid and the simulators' sweeps."""
+"""Unit directions: spread evenly (the marginal likelihood's quadrature grid, the simulators' sweeps) and clustered into the poses a recording holds."""
 
 from __future__ import annotations
 
@@ -40,11 +40,6 @@ def distinct_directions(directions: torch.Tensor, tolerance: float, enough: int)
         leaders = torch.cat([leaders, remaining[:1]])
         remaining = remaining[remaining @ remaining[0] < cosine]
     return leaders
-
-
-def count_distinct_directions(directions: torch.Tensor, tolerance: float, enough: int) -> int:
-    """How many distinct directions (poses) the unit rows hold, counted up to ``enough`` (:func:`distinct_directions`)."""
-    return len(distinct_directions(directions, tolerance, enough))
 
 
 def median_angle_from_poses(directions: torch.Tensor, leaders: torch.Tensor) -> float:
