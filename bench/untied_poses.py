@@ -85,11 +85,12 @@ def main() -> None:
             for seed in range(args.sessions):
                 recording, truth = held_session(seed, axes, channels, offsets, noise, poses, args.rows_per_pose)
                 try:
-                    for tie in (False, True):
-                        figures[tie].append(bars_figures(recording, truth, offsets, tie))
+                    both = {tie: bars_figures(recording, truth, offsets, tie) for tie in (False, True)}
                 except SfmnetError:
                     # Poses that leave the loads coplanar are refused by the closed form: no fit to judge.
-                    figures[False] = figures[False][: len(figures[True])]
+                    continue
+                for tie, figure in both.items():
+                    figures[tie].append(figure)
             cells = []
             for tie in (False, True):
                 ratios, covered = zip(*figures[tie])

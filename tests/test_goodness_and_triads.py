@@ -7,6 +7,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import lightning as L
 import numpy as np
@@ -19,6 +20,8 @@ from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.eval.diagnostics import calibration_diagnostics
+from sfmnet.eval.goodness_of_fit import GoodnessOfFit
+from sfmnet.linalg.uncertainty import CalibrationUncertainty, relative_matrix_std
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import LearnerModule
@@ -108,19 +111,28 @@ def one_row_poses(seed: int, slip: float = 1.0, bumps: int = 0) -> CalibrationRe
     return CalibrationRecording(readings=torch.from_numpy(readings), loads=torch.from_numpy(given), magnitude=9.80665)
 
 
-def checked(recording: CalibrationRecording, **model_options):
+class Diagnosed(NamedTuple):
+    model: ShapeFromMotion
+    warnings: list[str]
+    goodness: GoodnessOfFit
+    uncertainty: CalibrationUncertainty
+
+
+def diagnosed(recording: CalibrationRecording, **model_options) -> Diagnosed:
+    """A fit (:func:`fit`) with its error bars, warnings and goodness of fit, as a calibration run computes them."""
     model = fit(recording, **model_options)
     loads = model.fitted_loads(recording)
-    bars = model.uncertainty(recording, loads)
-    _, _, goodness = calibration_diagnostics(model, recording, [f"c{i}" for i in range(8)], loads, bars, "N")
-    return goodness, bars
+    uncertainty = model.uncertainty(recording, loads)
+    channels = [f"c{i}" for i in range(recording.readings.shape[1])]
+    _, warnings, goodness = calibration_diagnostics(model, recording, channels, loads, uncertainty, "N")
+    return Diagnosed(model, warnings, goodness, uncertainty)
 
 
 def test_a_slipped_mass_is_flagged_with_no_repeated_pose():
     """With p > n the readings off the load space measure the noise, so the magnitudes can be judged row by row."""
-    clean, _ = checked(one_row_poses(0), refinement="alternation")
+    clean = diagnosed(one_row_poses(0), refinement="alternation").goodness
     assert clean.trustworthy and clean.metrics["goodness/constraint_noise_ratio"] < 1.1
-    slipped, _ = checked(one_row_poses(0, slip=0.97), refinement="alternation")
+    slipped = diagnosed(one_row_poses(0, slip=0.97), refinement="alternation").goodness
     assert not slipped.trustworthy and slipped.metrics["goodness/constraint_noise_ratio"] > 3
 
 
@@ -238,26 +250,25 @@ def test_auto_says_when_a_long_low_snr_session_is_too_big_for_the_marginal():
     assert model.refinement == "marginal" and not model.fit_warnings
 
 
-def held_poses(seed: int, poses: int, rows: int = 1200, noise: float = 0.01) -> CalibrationRecording:
+def held_poses(seed: int, poses: int, rows: int = 1200, noise: float = 0.01) -> tuple[CalibrationRecording, torch.Tensor]:
     """6 channels, 3 axes, offsets: ``poses`` random orientations, each held for ``rows / poses`` rows, ``noise`` a fraction
-    of the readings' spread."""
+    of the readings' spread; and the true ``C``."""
     rng = np.random.default_rng(seed)
     shape = rng.normal(size=(3, 6))
     directions = rng.normal(size=(poses, 3))
     directions = np.repeat(directions / np.linalg.norm(directions, axis=1, keepdims=True), rows // poses, axis=0)
     clean = 9.81 * directions @ shape + rng.normal(size=6)
     readings = clean + noise * clean.std() * rng.normal(size=clean.shape)
-    return CalibrationRecording(readings=torch.from_numpy(readings), loads=torch.full((len(readings), 3), math.nan, dtype=torch.float64), magnitude=9.81)
+    unknown = torch.full((len(readings), 3), math.nan, dtype=torch.float64)
+    return CalibrationRecording(readings=torch.from_numpy(readings), loads=unknown, magnitude=9.81), calibration_matrix(torch.from_numpy(shape))
 
 
 @pytest.mark.parametrize("poses", [6, 8, 12])
 def test_too_few_poses_for_the_unknowns_are_flagged_however_many_rows_repeat_them(poses: int):
     """8 orientations give 8 equations for the 9 unknowns of a 3-axis shape with offsets: a hostile tester's session
     of 8 poses x 250 rows came out 24x its error bars with no warning."""
-    recording = held_poses(poses, poses)
-    model = fit(recording)
-    loads = model.fitted_loads(recording)
-    _, warnings, goodness = calibration_diagnostics(model, recording, [f"c{i}" for i in range(6)], loads, model.uncertainty(recording, loads), "N")
+    recording, _ = held_poses(poses, poses)
+    _, warnings, goodness, _ = diagnosed(recording)
     flagged = any("distinct orientations (poses) for the 9 unknowns" in w for w in warnings)
     assert flagged == (poses < 9)
     if flagged:
@@ -316,18 +327,14 @@ def test_a_marginal_fit_far_from_the_alternation_beside_it_is_not_trusted():
     """A 60-degree cap with offsets at direction SNR 21.5: the marginal comes out 4.3x its bars, the alternation beside it
     4x nearer, and the two differ by more than twice the bars; on the whole sphere they agree to a fraction of one."""
     recording, truth = cap_session(2, rows=200)
-    model = fit(recording)
-    uncertainty = model.uncertainty(recording, model.fitted_loads(recording))
-    bars = float(uncertainty.matrix_std.norm() / model.calibration_matrix().norm())
+    model, warnings, goodness, uncertainty = diagnosed(recording)
+    bars = relative_matrix_std(uncertainty.matrix_std, model.calibration_matrix())
     assert model.refinement == "marginal" and aligned_error(model, truth) > 3 * bars
     assert aligned_error(model.alternation_beside(recording), truth) < aligned_error(model, truth) / 3
-    _, warnings, goodness = calibration_diagnostics(model, recording, [f"c{i}" for i in range(6)], model.fitted_loads(recording), uncertainty, "N")
     assert goodness.metrics["goodness/refinement_disagreement"] > 2 and not goodness.trustworthy
     assert any("alternation fitted to the same rows differ" in warning for warning in warnings)
     sphere, truth = cap_session(0, rows=200, cap_deg=180.0, noise_fraction=0.05)
-    model = fit(sphere)
-    uncertainty = model.uncertainty(sphere, model.fitted_loads(sphere))
-    _, _, goodness = calibration_diagnostics(model, sphere, [f"c{i}" for i in range(6)], model.fitted_loads(sphere), uncertainty, "N")
+    model, _, goodness, _ = diagnosed(sphere)
     assert model.refinement == "marginal" and goodness.metrics["goodness/refinement_disagreement"] < 1
     assert goodness.trustworthy, goodness.warnings
 
@@ -341,30 +348,21 @@ def test_the_alternation_is_fitted_beside_marginal_fits_only_where_its_bias_is_w
     assert model.refinement == "alternation" and model.alternation_beside(recording) is None
 
 
-def pose_check(recording: CalibrationRecording, **model_options) -> tuple[ShapeFromMotion, list[str], dict[str, float]]:
-    """The fit's warnings and goodness metrics (6 channels)."""
-    model = fit(recording, **model_options)
-    loads = model.fitted_loads(recording)
-    _, warnings, goodness = calibration_diagnostics(model, recording, [f"c{i}" for i in range(6)], loads, model.uncertainty(recording, loads), "N")
-    return model, warnings, goodness
-
-
 def test_untied_rows_held_at_too_few_poses_for_their_error_bars_are_flagged():
     """10 poses x 60 rows for 9 unknowns at 10 % noise, each row's direction fitted on its own (auto: the marginal): the
     bars come out too small (seeds 0-5: 3.9, 0.7, 0.7, 1.4, 3.2 and 2.7x them, RMS 2.4; this is seed 0), and the check
     fired on all six; the same rows tied to their poses, 20 poses, or a continuous 60-degree cap pass."""
-    recording = held_poses(0, 10, rows=600, noise=0.1)
-    model, warnings, goodness = pose_check(recording)
-    bars = float(model.uncertainty(recording, model.fitted_loads(recording)).matrix_std.norm() / model.calibration_matrix().norm())
-    truth = calibration_matrix(torch.from_numpy(np.random.default_rng(0).normal(size=(3, 6))))
+    recording, truth = held_poses(0, 10, rows=600, noise=0.1)
+    model, warnings, goodness, uncertainty = diagnosed(recording)
+    bars = relative_matrix_std(uncertainty.matrix_std, model.calibration_matrix())
     assert aligned_error(model, truth) > 3 * bars
     assert any("held at only 10 orientations" in w for w in warnings) and not goodness.trustworthy
     assert goodness.metrics["goodness/pose_scatter_ratio"] < 1
     pose = torch.arange(len(recording.readings)) // 60
-    _, warnings, _ = pose_check(dataclasses.replace(recording, groups=pose))
+    warnings = diagnosed(dataclasses.replace(recording, groups=pose)).warnings
     assert not any("held at only" in w for w in warnings), warnings
-    _, warnings, goodness = pose_check(held_poses(0, 20, rows=600, noise=0.1))
+    warnings = diagnosed(held_poses(0, 20, rows=600, noise=0.1)[0]).warnings
     assert not any("held at only" in w for w in warnings), warnings
     cap, _ = cap_session(0, rows=400, noise_fraction=0.05)
-    _, warnings, goodness = pose_check(cap, refinement="alternation")
+    warnings = diagnosed(cap, refinement="alternation").warnings
     assert not any("held at only" in w for w in warnings), warnings

@@ -137,7 +137,7 @@ def test_too_few_poses_with_known_loads_still_check_the_known_loads():
         readings=torch.randn(rows, p, generator=generator, dtype=torch.float64),
         known=known, direction_dims=3, fit_noise=0.01, robust=False, groups=torch.arange(rows),
         calibrated_known=known_loads + 0.001, known_loads=known_loads,
-        matrix=torch.eye(3, p, dtype=torch.float64), load_unit="N", poses=PoseEquations(7, 9, True),
+        matrix=torch.eye(3, p, dtype=torch.float64), load_unit="N", poses=PoseEquations(7, 9, True, 15),
     )
     assert any("only 7 distinct orientations (poses) (the rows of one static interval" in w for w in result.warnings), result.warnings
     assert "goodness/known_load_ratio" in result.metrics

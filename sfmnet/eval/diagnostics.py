@@ -214,7 +214,8 @@ def distinct_poses(
     n, magnitude = recording.rank, recording.magnitude
     needed = metric_unknowns(n, model.estimate_offset)
     tied = model.unknown_poses(recording) is not None
-    enough = needed if tied else needed + untied_extra_poses(n)
+    untied_needed = needed + untied_extra_poses(n)
+    enough = needed if tied else untied_needed
     known = recording.known
     angle = noise_std * float(model.calibration_matrix().norm()) * math.sqrt((n - 1) / n) / magnitude
     tolerance = min(POSE_NOISE_SIGMAS * angle, MAX_POSE_TOLERANCE)
@@ -224,4 +225,4 @@ def distinct_poses(
     if 0 < len(leaders) < enough and angle > 0:
         scatter = median_angle_from_poses(directions, leaders) / angle
     equations = len(leaders) + n * recording.distinct_known_loads
-    return PoseEquations(equations, needed, tied, scatter)
+    return PoseEquations(equations, needed, tied, untied_needed, scatter)

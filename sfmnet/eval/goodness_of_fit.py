@@ -78,14 +78,16 @@ MAX_HELD_POSE_SCATTER = 1.5
 
 
 class PoseEquations(NamedTuple):
-    """The equations ``|m| = F`` the rows' distinct poses give (counted up to ``needed``, untied up to ``needed +``
-    :func:`untied_extra_poses`), the shape's unknowns (``needed``), whether the fit tied each group's rows to one
-    direction (then a group is one pose), and, where fewer poses were found than counted up to, the rows' median angle
-    from their pose's mean over one direction's RMS noise (NaN elsewhere)."""
+    """The equations ``|m| = F`` the rows' distinct poses give (counted up to ``needed``, untied up to
+    ``untied_needed``), the shape's unknowns (``needed``), whether the fit tied each group's rows to one direction
+    (then a group is one pose), the poses untied error bars need (``needed +`` :func:`untied_extra_poses`) and, where
+    fewer poses were found than counted up to, the rows' median angle from their pose's mean over one direction's RMS
+    noise (NaN elsewhere)."""
 
     equations: int
     needed: int
     tied: bool
+    untied_needed: int
     scatter: float = float("nan")
 
 
@@ -344,11 +346,10 @@ def goodness_of_fit(
                 "or give known loads"
             )
     if poses is not None:
-        equations, needed, tied, scatter = poses
+        equations, needed, tied, untied_needed, scatter = poses
         metrics["goodness/pose_equations"] = float(equations)
         if math.isfinite(scatter):
             metrics["goodness/pose_scatter_ratio"] = scatter
-        untied_needed = needed + untied_extra_poses(matrix.shape[0])
         if equations < needed:
             # Tied, a group's rows were given one direction: wrong groups (poses merged) look like few poses.
             check = " (the rows of one static interval or data.group_column label share one direction: check them)"
