@@ -91,6 +91,7 @@ def calibration_diagnostics(
         distinct_poses(model, recording, loads, uncertainty.noise_std),
         uncertainty.matrix_std,
         refinement_disagreement(model, recording, uncertainty),
+        model.learnt_orientation_law,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness

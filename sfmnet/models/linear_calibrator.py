@@ -82,6 +82,11 @@ class LinearCalibrator(nn.Module, ABC):
     def fit_mode(self) -> FitMode:
         return FitMode.STEPS
 
+    @property
+    def learnt_orientation_law(self) -> bool:
+        """Whether the error bars rest on a law of directions learnt from the rows (not assumed uniform); False here."""
+        return False
+
     def alternation_beside(self, recording: CalibrationRecording) -> LinearCalibrator | None:
         """A second estimator fitted to the same rows, for the diagnostics to compare with this fit; None here."""
         return None

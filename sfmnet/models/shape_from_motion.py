@@ -278,6 +278,11 @@ class ShapeFromMotion(LinearCalibrator):
             return [low_snr_warning(self.direction_snr, "set model.refinement=marginal")]
         return []
 
+    @property
+    def learnt_orientation_law(self) -> bool:
+        """The marginal learnt a law other than the uniform one for some mass configuration (:attr:`law_learnt`)."""
+        return self.refinement == "marginal" and any(law != "uniform" for law in self.law_learnt)
+
     def alternation_beside(self, recording: CalibrationRecording) -> ShapeFromMotion | None:
         """The alternation fitted to the same rows with the same options, beside a marginal fit at a direction SNR where
         the alternation's own bias is within its bars (from :data:`ALTERNATION_BIASED_BELOW_SNR`); None elsewhere, or
