@@ -10,7 +10,7 @@ from __future__ import annotations
 import difflib
 from pathlib import Path
 
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import InterpolationResolutionError, OmegaConfBaseException
 
 from sfmnet.config_values import check_config
@@ -90,6 +90,7 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
     settings: list[str] = []
     first_job: list[str] = []
     given: set[str] = set()
+    emptied: list[str] = []
     for item in overrides:
         if item.startswith("-") or "=" not in item:
             continue
@@ -120,6 +121,8 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
             selections.append(f"{key}={values[0]}")
         elif key not in groups:
             settings.append(key)
+            if not override.is_sweep_override() and override.value() == {}:
+                emptied.append(key)
     with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
         config = compose(config_name="train", overrides=selections)
         keys = flat_keys(OmegaConf.to_container(config, resolve=False, throw_on_missing=False))
@@ -128,6 +131,14 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
                 raise SfmnetError(
                     f"unknown config key '{key}'{suggestion(key, keys)}: see python -m sfmnet train --help "
                     "(add a new key with +key=value)"
+                )
+        for key in emptied:
+            kept = OmegaConf.select(config, key)
+            # Hydra merges a dict override into the dict it names, so an empty one removes nothing.
+            if isinstance(kept, DictConfig) and len(kept):
+                raise SfmnetError(
+                    f"{key}={{}} removes nothing (Hydra merges it into {key}, which keeps {', '.join(kept)}): drop them "
+                    f"all with '~{key}', or one with '~{key}.<name>'"
                 )
         missing = sorted(key for key in OmegaConf.missing_keys(config) if key not in given)
         if missing:

@@ -80,8 +80,9 @@ def test_data_the_method_cannot_use_is_refused(tmp_path: Path, overrides: list[s
         (["experiment=calibrate_csv"], "data.path must be given, e.g. data.path=<value>"),
         (["experiment=calibrate_csv", "data.path=/no/such/file.csv", "data.magnitude=1"], "/no/such/file.csv does not exist"),
         (["data.motion_span=1"], "the loads are collinear or coplanar"),
+        (["experiment=table1", "baselines={}"], "baselines={} removes nothing (Hydra merges it into baselines, which keeps"),
     ],
-    ids=["unknown-experiment", "misspelt-key", "missing-path", "no-such-file", "collinear"],
+    ids=["unknown-experiment", "misspelt-key", "missing-path", "no-such-file", "collinear", "empty-dict-removes-nothing"],
 )
 def test_bad_input_one_line_exit_2(tmp_path: Path, overrides: list[str], message: str):
     result = sfmnet("train", f"hydra.run.dir={tmp_path / 'run'}", *overrides, *QUIET)
