@@ -121,7 +121,7 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
             selections.append(f"{key}={values[0]}")
         elif key not in groups:
             settings.append(key)
-            if not override.is_sweep_override() and override.value() == {}:
+            if override.value() == {}:
                 emptied.append(key)
     with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
         config = compose(config_name="train", overrides=selections)

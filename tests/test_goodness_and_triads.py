@@ -314,10 +314,8 @@ def test_bars_resting_on_a_learnt_law_of_directions_are_not_trusted_as_far(law: 
     recording = datamodule.data.recordings["rotation"]
     model, warnings, goodness, uncertainty = diagnosed(recording, estimate_offset=False)
     assert model.learnt_orientation_law
-    truth = torch.linalg.pinv(datamodule.data.truth.matrix.T)
-    turn = orthogonal_procrustes(model.physical_shape().T, truth.T).T
-    error_over_bars = float((model.calibration_matrix() - turn.T @ datamodule.data.truth.matrix).norm() / uncertainty.matrix_std.norm())
     relative = relative_matrix_std(uncertainty.matrix_std, model.calibration_matrix())
+    error_over_bars = aligned_error(model, datamodule.data.truth.matrix) / relative
     warned = any("leave out what learning the law of directions" in warning for warning in warnings)
     if flagged:
         # The premise: under the uniform law's limit, yet the error twice the bars or more.

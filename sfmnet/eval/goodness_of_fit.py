@@ -376,18 +376,18 @@ def goodness_of_fit(
             )
     if matrix_std is not None:
         relative = relative_matrix_std(matrix_std, matrix)
-        limit = MAX_RELATIVE_MATRIX_STD_LEARNT_LAW if learnt_law else MAX_RELATIVE_MATRIX_STD
+        # The limit, the worst error measured past it (in bars) and what else the bars leave out.
+        limit, measured, cost = (
+            (MAX_RELATIVE_MATRIX_STD_LEARNT_LAW, 2.7, ", and these rest on a law of directions learnt from the rows: they "
+             "leave out what learning the law of directions costs")
+            if learnt_law
+            else (MAX_RELATIVE_MATRIX_STD, 7, "")
+        )
         if relative > limit:
-            cost = (
-                ", and these rest on a law of directions learnt from the rows: they leave out what learning the law of "
-                "directions costs"
-                if learnt_law
-                else ""
-            )
             warnings.append(
                 f"the matrix standard error is {100 * relative:.1f} % of the matrix: error bars are first order (the "
                 f"Cramer-Rao bound), which holds only for errors small against the calibration{cost}; past "
-                f"{100 * limit:.0f} % the error was measured up to {'2.7' if learnt_law else '7'}x the bars; record more "
+                f"{100 * limit:.0f} % the error was measured up to {measured:g}x the bars; record more "
                 "rows or poses, or load the sensor more heavily, to bring it down"
             )
     if refinement_disagreement is not None:
