@@ -53,6 +53,10 @@ def test_csv_contract_end_to_end(tmp_path: Path):
         f"known loads  {metrics['goodness/known_load_rms']:.4g} N RMS per axis from where the calibration puts them "
         f"({metrics['goodness/known_load_pct']:.3g} % of their size)" in headline
     )
+    # How much of the bars the known loads' frame is, beside the file's figure.
+    assert 0 <= calibration["matrix_std_frame_share"] == metrics["matrix_std_frame_share"] <= 1
+    rows = int(metrics["known_load_rows"])
+    assert f"frame        the {rows} known-load rows set it: {100 * metrics['matrix_std_frame_share']:.0f} % of" in headline
     assert "error bars   trustworthy" in headline
 
     output = tmp_path / "loads.csv"

@@ -21,7 +21,9 @@ from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.simulators.simulated_sensor import FingertipDataModule
 from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.eval.diagnostics import calibration_diagnostics
-from sfmnet.eval.goodness_of_fit import MAX_RELATIVE_MATRIX_STD, MAX_RELATIVE_MATRIX_STD_LEARNT_LAW, GoodnessOfFit
+from sfmnet.eval.goodness_of_fit import (
+    MAX_POSE_MISFIT_RATIO, MAX_RELATIVE_MATRIX_STD, MAX_RELATIVE_MATRIX_STD_LEARNT_LAW, POSE_MISFIT_Z, GoodnessOfFit,
+)
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, relative_matrix_std
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.models.shape_from_motion import ShapeFromMotion
@@ -112,6 +114,27 @@ def one_row_poses(seed: int, slip: float = 1.0, bumps: int = 0) -> CalibrationRe
     return CalibrationRecording(readings=torch.from_numpy(readings), loads=torch.from_numpy(given), magnitude=9.80665)
 
 
+def nonlinear_poses(seed: int, nonlinearity: float = 0.0, poses: int = 30, rows: int = 100) -> tuple[CalibrationRecording, torch.Tensor]:
+    """An 8-channel sensor with offsets held at ``poses`` random poses (the first three the known loads along the axes) of
+    ``rows`` rows each, noise 0.05; each channel ``nonlinearity`` of its full scale from linear, an odd square law."""
+    generator = np.random.default_rng(seed)
+    shape, offset = generator.normal(size=(3, 8)), 2 * generator.normal(size=8)
+    directions = generator.normal(size=(poses, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    directions[:3] = np.eye(3)
+    loads = np.repeat(9.81 * directions, rows, axis=0)
+    linear = loads @ shape
+    readings = linear + nonlinearity * linear * np.abs(linear) / np.abs(linear).max(axis=0)
+    readings = readings + offset + generator.normal(scale=0.05, size=linear.shape)
+    given = np.full_like(loads, np.nan)
+    given[: 3 * rows] = loads[: 3 * rows]
+    recording = CalibrationRecording(
+        readings=torch.from_numpy(readings), loads=torch.from_numpy(given), magnitude=9.81,
+        groups=torch.arange(poses).repeat_interleave(rows),
+    )
+    return recording, calibration_matrix(torch.from_numpy(shape))
+
+
 class Diagnosed(NamedTuple):
     model: ShapeFromMotion
     warnings: list[str]
@@ -135,6 +158,27 @@ def test_a_slipped_mass_is_flagged_with_no_repeated_pose():
     assert clean.trustworthy and clean.metrics["goodness/constraint_noise_ratio"] < 1.1
     slipped = diagnosed(one_row_poses(0, slip=0.97), refinement="alternation").goodness
     assert not slipped.trustworthy and slipped.metrics["goodness/constraint_noise_ratio"] > 3
+
+
+def test_poses_missing_the_model_by_more_than_chance_are_flagged_under_the_ratio_limit():
+    """A sensor 0.3 % of full scale from linear, held at 30 poses: each pose's direction soaks up most of the distortion, so
+    the pose means miss by only 1.1-1.2x (under the ratio's limit of 2), yet with 3000 rows the bars shrank to a sixth
+    of the matrix's error. Over so many poses that small a miss is not chance; on the linear sensor it is."""
+    scores = []
+    for seed in range(8):
+        clean = diagnosed(nonlinear_poses(seed)[0])
+        assert clean.goodness.trustworthy, clean.warnings
+        scores.append(clean.goodness.metrics["goodness/pose_misfit_z"])
+    # A standard normal when the pose means' degrees of freedom are counted right (the global parameters left out:
+    # counting them in, the mean falls to about -1.7).
+    assert abs(np.mean(scores)) < 0.8 and max(scores) < POSE_MISFIT_Z, scores
+    recording, truth = nonlinear_poses(0, nonlinearity=0.003)
+    model, warnings, goodness, uncertainty = diagnosed(recording)
+    matrix = model.calibration_matrix()
+    error_over_bars = float((matrix - truth).norm()) / float(uncertainty.matrix_std.norm())
+    assert error_over_bars > 4 and goodness.metrics["goodness/pose_misfit_ratio"] < MAX_POSE_MISFIT_RATIO
+    assert goodness.metrics["goodness/pose_misfit_z"] > POSE_MISFIT_Z and not goodness.trustworthy
+    assert any("more than chance allows over 30 poses" in warning for warning in warnings), warnings
 
 
 def test_huber_error_bars_describe_the_rows_it_kept(tmp_path: Path):

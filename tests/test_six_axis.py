@@ -14,6 +14,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from sfmnet.readers.csv_calibration import CsvCalibrationDataModule
 from sfmnet.simulators.simulated_force_torque import ForceTorqueSensorDataModule
 from sfmnet.errors import SfmnetError
+from sfmnet.eval.calibration_headline import trust_lines
+from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.linalg.wrench import wrench_map
 from sfmnet.models.least_squares import LeastSquaresCalibration
 from sfmnet.models.shape_from_motion import ShapeFromMotion
@@ -72,6 +74,25 @@ def test_six_axis_error_bars_are_honest_and_match_least_squares():
     within = float((torch.cat(scores).abs() < 1).double().mean())
     assert 0.60 < within < 0.76, within
     assert float(torch.tensor(ratios).median()) < 1.25, ratios
+
+
+def test_six_axis_known_loads_are_reported_in_newtons_and_newton_metres():
+    """One RMS over forces and torques would mix N with N m: the headline gives each its own, in its unit."""
+    datamodule = session(seed=1)
+    recording, channels = datamodule.data.recordings["rotation"], datamodule.data.channels
+    model = refined(ShapeFromMotion(), recording)
+    loads = model.fitted_loads(recording)
+    metrics, _, _ = calibration_diagnostics(model, recording, channels, loads, model.uncertainty(recording, loads), "N, N m")
+    error = model.motion_of(recording.readings[recording.known]) - recording.loads[recording.known]
+    assert metrics["goodness/known_load_force_rms"] == pytest.approx(float(error[:, :3].pow(2).mean().sqrt()))
+    assert metrics["goodness/known_load_torque_rms"] == pytest.approx(float(error[:, 3:].pow(2).mean().sqrt()))
+    lines = trust_lines({**metrics, "residual_rms": model.residual_rms(recording)}, channels, "N, N m", math.nan, 6)
+    known = next(line.strip() for line in lines if "known loads" in line)
+    assert known.startswith(
+        f"known loads  {metrics['goodness/known_load_force_rms']:.4g} N RMS per force axis and "
+        f"{metrics['goodness/known_load_torque_rms']:.4g} N m per torque axis from where the calibration puts them, "
+    ), known
+    assert "load units" not in known and "% of their size" not in known
 
 
 def test_too_few_known_wrenches_is_one_clear_error():

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import functools
+import math
 
 import pytest
 import torch
 
-from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
+from sfmnet.data.recording import CalibrationRecording
+from sfmnet.linalg.uncertainty import relative_matrix_std
+from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.fitting import refine_in_process
 
@@ -62,6 +65,39 @@ def test_error_bars_shrink_with_more_samples_except_the_frame():
     # ... but the matrix, whose orientation rests on three known loads, gains far less.
     matrix_ratio = float(bars[800].matrix_std.norm() / bars[50].matrix_std.norm())
     assert 0.5 < matrix_ratio < 1.0
+
+
+def test_the_frames_share_of_the_bars_is_what_more_known_load_readings_shrink():
+    """The default fingertip session (one known load, one row): that row's noise turning the frame is 91 % of the
+    matrix's variance. Twenty-five readings of the same load leave the shape's part as it was and divide the frame's
+    by 14 (not 25: the offsets' error turns the known load's direction too)."""
+    datamodule = FingertipDataModule(magnitude=111.4, offset_scale=0.05, errors={"angle_error_deg": 0.0}, seed=0)
+    datamodule.setup()
+    recording, truth = datamodule.data.recordings["rotation"], datamodule.data.truth
+    shape = torch.linalg.pinv(truth.matrix).T
+    noise_std = datamodule.noise_fraction * float(shape.norm(dim=0).mean()) * datamodule.magnitude
+    generator = torch.Generator().manual_seed(1)
+    more = recording.true_loads[-1] @ shape + truth.offset + noise_std * torch.randn(24, 4, generator=generator, dtype=torch.float64)
+    repeated = CalibrationRecording(
+        readings=torch.cat([recording.readings, more]), loads=torch.cat([recording.loads, recording.loads[-1:].expand(24, 2)]),
+        magnitude=recording.magnitude, mirror_hint=recording.mirror_hint,
+    )
+    shares, totals, shape_parts = [], [], []
+    for session in (recording, repeated):
+        model = refined(ShapeFromMotion(refinement="alternation"), session)
+        bars = model.uncertainty(session, model.fitted_loads(session))
+        total = relative_matrix_std(bars.matrix_std, model.calibration_matrix())
+        shares.append(bars.frame_share)
+        totals.append(total)
+        shape_parts.append(total * math.sqrt(1 - bars.frame_share))
+    assert shares[0] > 0.85 and shares[1] < 0.5, shares
+    assert shape_parts[1] == pytest.approx(shape_parts[0], rel=0.05)
+    frame_parts = [total**2 * share for total, share in zip(totals, shares)]
+    assert frame_parts[1] < frame_parts[0] / 10 and totals[1] < totals[0] / 2
+    without_known = ShapeFromMotion(refinement="alternation")
+    assert refined(without_known, recording.without(recording.known)).uncertainty(
+        recording.without(recording.known), without_known.fitted_loads(recording.without(recording.known))
+    ).frame_share is None
 
 
 def test_auto_refinement_integrates_directions_out_at_low_snr():

@@ -140,7 +140,8 @@ class FixedSensorimotorDataModule(SensorimotorDataModule):
 def check_training_vectors(data: SensorimotorData) -> None:
     """Refuse what no linear learner can use: constant sensors, fewer samples than columns."""
     sensors = np.concatenate([e.sensors for e in data.train])
-    constant = [name for name, spread in zip(data.sensors, sensors.std(axis=0)) if spread == 0]
+    # The range, not the standard deviation, which rounding leaves at ~1e-13 for a constant column of most values.
+    constant = [name for name, spread in zip(data.sensors, np.ptp(sensors, axis=0)) if spread == 0]
     if constant:
         raise SfmnetError(
             f"sensor column {', '.join(constant)} is constant in the training data: it carries no information; "

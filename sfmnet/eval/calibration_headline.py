@@ -14,6 +14,8 @@ from sfmnet.eval.diagnostics import WARN_COVERAGE
 
 # Channel names listed in full up to this many characters; beyond, the first ones and a count.
 CHANNELS_WIDTH = 70
+# From this share of the bars' variance the known-load frame, not the orientations, is what limits the calibration.
+FRAME_DOMINATES = 0.5
 
 
 def trust_lines(
@@ -55,11 +57,19 @@ def trust_lines(
         lines.append(f"residuals    {residual}; {metrics['residual_rms']:.4g} raw units RMS per channel")
     if "goodness/known_load_rms" in metrics:
         percent = f" ({metrics['goodness/known_load_pct']:.3g} % of their size)" if "goodness/known_load_pct" in metrics else ""
+        distance = f"{metrics['goodness/known_load_rms']:.4g} {load_unit} RMS per axis"
+        if "goodness/known_load_torque_rms" in metrics:
+            percent = ""  # a percentage of a size mixing N and N m says nothing
+            distance = (
+                f"{metrics['goodness/known_load_force_rms']:.4g} {force_unit} RMS per force axis and "
+                f"{metrics['goodness/known_load_torque_rms']:.4g} {torque_unit} per torque axis"
+            )
         lines.append(
-            f"known loads  {metrics['goodness/known_load_rms']:.4g} {load_unit if not torque_unit else 'load units'} RMS "
-            "per axis from where the calibration puts them"
+            f"known loads  {distance} from where the calibration puts them"
             f"{percent}, {metrics['goodness/known_load_ratio']:.2g}x what the noise explains"
         )
+        if "matrix_std_frame_share" in metrics:
+            lines.append(frame_line(metrics["matrix_std_frame_share"], int(metrics["known_load_rows"])))
     else:
         lines.append("known loads  none given: the load frame is arbitrary (magnitudes are right)")
     if metrics.get("error_bars_trustworthy", 1.0):
@@ -70,6 +80,14 @@ def trust_lines(
     else:
         lines.append("error bars   NOT TRUSTWORTHY: a goodness-of-fit check or the fit failed (the warnings say which)")
     return [f"    {line}" for line in lines]
+
+
+def frame_line(share: float, rows: int) -> str:
+    """Where the error bars come from: the frame the known-load rows set, or the shape the orientations give."""
+    words = f"frame        the {rows} known-load row{'s' if rows > 1 else ''} set{'' if rows > 1 else 's'} it: {100 * share:.0f} % of the error bars' variance"
+    if share >= FRAME_DOMINATES:
+        return words + " (more readings of the known loads shrink the bars; more orientations barely do)"
+    return words + " (the rest is the shape the orientations give)"
 
 
 def refinement_words(estimator: dict[str, Any]) -> str:

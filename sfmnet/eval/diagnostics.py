@@ -92,9 +92,18 @@ def calibration_diagnostics(
         uncertainty.matrix_std,
         refinement_disagreement(model, recording, uncertainty),
         model.learnt_orientation_law,
+        global_parameters(model, recording, direction_dims),
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
+
+
+def global_parameters(model: LinearCalibrator, recording: CalibrationRecording, direction_dims: int) -> int:
+    """The fit's parameters shared by every row: the shape's ``n p`` and the offsets' ``p`` (when estimated), less the
+    ``d (d - 1) / 2`` of the directions' rotation where no known load fixes the frame (a gauge, not a parameter)."""
+    n, p = recording.rank, recording.readings.shape[1]
+    gauge = 0 if bool(recording.known.any()) else direction_dims * (direction_dims - 1) // 2
+    return n * p + (p if model.estimate_offset else 0) - gauge
 
 
 def load_residuals(residuals: torch.Tensor, matrix: torch.Tensor) -> dict[str, float]:

@@ -124,7 +124,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             )
         readings = table.numeric(channels, "channel")
         check_finite(readings, channels, table, "reading")
-        constant = [name for name, spread in zip(channels, readings.std(axis=0)) if spread == 0]
+        # The range, not the standard deviation: that of a column of 1.234 is ~1e-13 in floating point, not 0.
+        constant = [name for name, spread in zip(channels, np.ptp(readings, axis=0)) if spread == 0]
         if constant:
             raise SfmnetError(
                 f"channel {', '.join(constant)} of {self.path} is constant: it carries no load information; "

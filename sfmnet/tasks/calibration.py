@@ -74,6 +74,7 @@ class CalibrationTask(Task):
             extra={
                 "load_unit": data.load_unit,
                 "noise_std": uncertainty.noise_std,
+                "matrix_std_frame_share": uncertainty.frame_share,
                 "warnings": warnings,
                 "error_bars_trustworthy": trustworthy,
                 "outlier_rows": goodness.outlier_rows[:100],
@@ -89,6 +90,9 @@ class CalibrationTask(Task):
             "epochs": float(fitted.trainer.current_epoch),
             **diagnostics,
         }
+        if uncertainty.frame_share is not None:
+            metrics["matrix_std_frame_share"] = uncertainty.frame_share
+            metrics["known_load_rows"] = float(recording.known.sum())
         for key, value in fitted.trainer.callback_metrics.items():
             if key.startswith("train/"):
                 metrics[key] = float(value)

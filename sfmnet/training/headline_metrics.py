@@ -13,7 +13,7 @@ from collections.abc import Iterable
 HEADLINE_METRICS = (
     # calibration
     "eval/max_error_pct", "eval/max_std_dev", "lopo/force_rms", "lopo/torque_rms", "test/force_rms", "test/torque_rms",
-    "test/magnitude_rms", "matrix_error_relative", "matrix_std_relative", "coverage", "rank_gap", "goodness/outliers",
+    "test/magnitude_rms", "matrix_error_relative", "matrix_std_relative", "matrix_std_frame_share", "coverage", "rank_gap", "goodness/outliers",
     # sensorimotor learning (per command)
     "rank", "*_accuracy", "*_kappa", "*_when_f1", "confidence_auroc", "subspace_angle_deg",
     # sensorimotor learning, closed loop (per policy)
