@@ -68,7 +68,7 @@ def test_error_bars_shrink_with_more_samples_except_the_frame():
 
 
 def test_the_frames_share_of_the_bars_is_what_more_known_load_readings_shrink():
-    """The default fingertip session (one known load, one row): that row's noise turning the frame is 91 % of the
+    """The default fingertip session (one known load, one row): that row's noise turning the frame is 92 % of the
     matrix's variance. Twenty-five readings of the same load leave the shape's part as it was and divide the frame's
     by 14 (not 25: the offsets' error turns the known load's direction too)."""
     datamodule = FingertipDataModule(magnitude=111.4, offset_scale=0.05, errors={"angle_error_deg": 0.0}, seed=0)

@@ -178,7 +178,7 @@ def calibration_uncertainty(
 
     The frame's share (:attr:`CalibrationUncertainty.frame_share`): the unknown rows say nothing of how the load
     frame is turned, so with one known load set on a stage most of a matrix's variance is often that one reading's
-    noise turning the frame (the default fingertip session: 91 %), which more readings of the known loads shrink and
+    noise turning the frame (the default fingertip session: 92 %), which more readings of the known loads shrink and
     more orientations do not.
     """
     n, p = shape.shape
