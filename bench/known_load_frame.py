@@ -28,6 +28,7 @@ from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.linalg.uncertainty import relative_matrix_std
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.simulators.simulated_sensor import FingertipDataModule
+from sfmnet.simulators.simulation import reread_last_known_load
 from sfmnet.training.fitting import refine_in_process
 
 
@@ -39,17 +40,7 @@ def session(seed: int, law: str, noise: float, samples: int, known_rows: int) ->
     datamodule.setup()
     recording, truth = datamodule.data.recordings["rotation"], datamodule.data.truth
     if known_rows > 1:
-        shape = torch.linalg.pinv(truth.matrix).T
-        noise_std = noise * float(shape.norm(dim=0).mean()) * datamodule.magnitude
-        generator = torch.Generator().manual_seed(10_000 + seed)
-        extra = recording.true_loads[-1] @ shape + truth.offset
-        extra = extra + noise_std * torch.randn(known_rows - 1, shape.shape[1], generator=generator, dtype=shape.dtype)
-        recording = CalibrationRecording(
-            readings=torch.cat([recording.readings, extra]),
-            loads=torch.cat([recording.loads, recording.loads[-1:].expand(known_rows - 1, -1)]),
-            magnitude=recording.magnitude,
-            mirror_hint=recording.mirror_hint,
-        )
+        recording = reread_last_known_load(recording, truth, noise, known_rows, torch.Generator().manual_seed(10_000 + seed))
     return recording, truth.matrix
 
 

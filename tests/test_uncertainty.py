@@ -8,9 +8,9 @@ import math
 import pytest
 import torch
 
-from sfmnet.data.recording import CalibrationRecording
 from sfmnet.linalg.uncertainty import relative_matrix_std
 from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
+from sfmnet.simulators.simulation import reread_last_known_load
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.fitting import refine_in_process
 
@@ -74,14 +74,7 @@ def test_the_frames_share_of_the_bars_is_what_more_known_load_readings_shrink():
     datamodule = FingertipDataModule(magnitude=111.4, offset_scale=0.05, errors={"angle_error_deg": 0.0}, seed=0)
     datamodule.setup()
     recording, truth = datamodule.data.recordings["rotation"], datamodule.data.truth
-    shape = torch.linalg.pinv(truth.matrix).T
-    noise_std = datamodule.noise_fraction * float(shape.norm(dim=0).mean()) * datamodule.magnitude
-    generator = torch.Generator().manual_seed(1)
-    more = recording.true_loads[-1] @ shape + truth.offset + noise_std * torch.randn(24, 4, generator=generator, dtype=torch.float64)
-    repeated = CalibrationRecording(
-        readings=torch.cat([recording.readings, more]), loads=torch.cat([recording.loads, recording.loads[-1:].expand(24, 2)]),
-        magnitude=recording.magnitude, mirror_hint=recording.mirror_hint,
-    )
+    repeated = reread_last_known_load(recording, truth, datamodule.noise_fraction, 25, torch.Generator().manual_seed(1))
     shares, totals, shape_parts = [], [], []
     for session in (recording, repeated):
         model = refined(ShapeFromMotion(refinement="alternation"), session)

@@ -141,50 +141,56 @@ def within_group_noise(readings: torch.Tensor, groups: torch.Tensor) -> float:
     return math.sqrt(float(deviation.pow(2).sum()) / dof) if dof > 0 else math.nan
 
 
-def pose_misfit_ratio(residuals: torch.Tensor, groups: torch.Tensor, dof: torch.Tensor, noise: float) -> float:
+class PoseMeans(NamedTuple):
+    """Per group of two or more rows with residual degrees of freedom: ``n_k |rbar_k|^2`` (raw units squared) and
+    ``k_k``, the mean residual degrees of freedom of its rows."""
+
+    squares: torch.Tensor
+    dof: torch.Tensor
+
+
+def pose_means(residuals: torch.Tensor, groups: torch.Tensor, dof: torch.Tensor) -> PoseMeans:
+    """:class:`PoseMeans` of ``residuals`` (``f x p``) grouped by ``groups`` (``f``, long), ``dof`` (``f``, long) per row."""
+    means, _, counts = group_means(residuals, groups)
+    row_dof = group_means(dof.to(residuals.dtype)[:, None], groups)[0][:, 0]
+    several = (counts > 1) & (row_dof > 0)
+    return PoseMeans(squares=counts[several] * means[several].pow(2).sum(dim=1), dof=row_dof[several])
+
+
+def pose_misfit_ratio(poses: PoseMeans, noise: float) -> float:
     """How far each group's mean residual is from what white noise predicts: ``sqrt(mean_k n_k |rbar_k|^2 / k_k) / sigma``.
 
     A group of ``n_k`` rows recorded in one pose has a mean residual of variance ``k_k sigma^2 / n_k``
     (``k_k`` residual degrees of freedom per row) if the model fits and the noise is white; ~1
     then. Larger: the model misses the poses (nonlinearity, a load that differs from pose to pose)
     or the noise is correlated in time (tremor, drift), and error bars that assume white noise
-    are too small by about this factor. NaN without a group of two or more rows.
+    are at least this factor too small. NaN without a group of two or more rows.
 
     Args:
-        residuals: ``f x p``; groups: ``f`` (long); dof: ``f`` (long); noise: ``sigma`` (raw units).
+        poses: :func:`pose_means` of the residuals; noise: ``sigma`` (raw units).
     """
-    means, _, counts = group_means(residuals, groups)
-    row_dof = group_means(dof.to(residuals.dtype)[:, None], groups)[0][:, 0]
-    several = (counts > 1) & (row_dof > 0)
-    if not bool(several.any()) or not noise > 0:
+    if not len(poses.dof) or not noise > 0:
         return math.nan
-    scaled = counts[several] * means[several].pow(2).sum(dim=1) / row_dof[several]
-    return math.sqrt(float(scaled.mean())) / noise
+    return math.sqrt(float((poses.squares / poses.dof).mean())) / noise
 
 
-def pose_misfit_z(
-    residuals: torch.Tensor, groups: torch.Tensor, dof: torch.Tensor, noise: float, parameters: int
-) -> tuple[float, int]:
-    """How many standard deviations the pose means' chi-square lies above its expectation, and over how many poses.
+def pose_misfit_z(poses: PoseMeans, noise: float, parameters: int) -> float:
+    """How many standard deviations the pose means' chi-square lies above its expectation.
 
     ``T = sum_k n_k |rbar_k|^2 / sigma^2`` over the groups of two or more rows is ``chi2(nu)`` if the model fits
     and the noise is white, ``nu = sum_k k_k - parameters``: the pose means fix the global ``parameters`` (shape
-    and offsets, less the rotation gauge) and each pose's direction, which :func:`pose_misfit_ratio`'s ``k_k``
-    already leaves out. Standardised by the Wilson-Hilferty transform, ``z ~ N(0, 1)``; NaN where ``nu < 1``.
+    and offsets, less the rotation gauge) and each pose's direction, which ``k_k`` already leaves out.
+    Standardised by the Wilson-Hilferty transform, ``z ~ N(0, 1)``; NaN where ``nu < 1``.
 
     Args:
-        residuals: ``f x p``; groups: ``f`` (long); dof: ``f`` (long); noise: ``sigma`` (raw units, within poses).
+        poses: :func:`pose_means` of the residuals; noise: ``sigma`` (raw units, within poses).
         parameters: the global parameters the pose means determine.
     """
-    means, _, counts = group_means(residuals, groups)
-    row_dof = group_means(dof.to(residuals.dtype)[:, None], groups)[0][:, 0]
-    several = (counts > 1) & (row_dof > 0)
-    nu = float(row_dof[several].sum()) - parameters
+    nu = float(poses.dof.sum()) - parameters
     if nu < 1 or not noise > 0:
-        return math.nan, int(several.sum())
-    statistic = float((counts[several] * means[several].pow(2).sum(dim=1)).sum()) / noise**2
+        return math.nan
     a = 2 / (9 * nu)
-    return ((statistic / nu) ** (1 / 3) - (1 - a)) / math.sqrt(a), int(several.sum())
+    return ((float(poses.squares.sum()) / noise**2 / nu) ** (1 / 3) - (1 - a)) / math.sqrt(a)
 
 
 def constraint_noise_ratio(loads: torch.Tensor, off_space: torch.Tensor, matrix: torch.Tensor, magnitude: float) -> float:
@@ -353,8 +359,9 @@ def goodness_of_fit(
                     f"the model does not describe the data: its residuals are {ratio:.1f}x the noise seen within "
                     "static intervals or poses (rows in motion, a load that is not constant, a nonlinear sensor)"
                 )
-            misfit = pose_misfit_ratio(residuals, groups, dof, within)
-            z, misfit_poses = pose_misfit_z(residuals, groups, dof, within, parameters)
+            means = pose_means(residuals, groups, dof)
+            misfit = pose_misfit_ratio(means, within)
+            z = pose_misfit_z(means, within, parameters)
             metrics["goodness/pose_misfit_ratio"] = misfit
             if math.isfinite(z):
                 metrics["goodness/pose_misfit_z"] = z
@@ -367,7 +374,7 @@ def goodness_of_fit(
             elif z > POSE_MISFIT_Z:
                 warnings.append(
                     f"the poses' mean readings miss the model by {misfit:.2f}x what white noise within them explains, "
-                    f"more than chance allows over {misfit_poses} poses (z = {z:.1f}): a sensor not quite linear, hysteresis, "
+                    f"more than chance allows over {len(means.dof)} poses (z = {z:.1f}): a sensor not quite linear, hysteresis, "
                     "a load that differs between poses or drift; such a bias does not shrink with the rows as the "
                     "error bars do, so they may be several times too small"
                 )

@@ -15,6 +15,7 @@ from sfmnet.simulators.simulation import (
     ORIENTATION_LAWS,
     LinearSensor,
     LoadApplicationErrors,
+    channel_noise_std,
     evaluation_sweeps,
     least_squares_recording,
     random_directions,
@@ -120,9 +121,8 @@ class SimulatedSensorDataModule(CalibrationDataModule):
     def build(self) -> CalibrationData:
         generator = torch.Generator().manual_seed(self.seed)
         shape = self.true_shape(generator)
-        channel_scale = float(shape.norm(dim=0).mean()) * self.magnitude
         offset = torch.randn(shape.shape[1], generator=generator, dtype=DTYPE) * self.offset_scale
-        sensor = LinearSensor(shape=shape, offset=offset, noise_std=self.noise_fraction * channel_scale)
+        sensor = LinearSensor(shape=shape, offset=offset, noise_std=channel_noise_std(shape, self.magnitude, self.noise_fraction))
         masses = true_masses(sorted({self.magnitude, *self.least_squares_masses}), self.errors, generator)
         recordings = {
             "rotation": rotation_recording(

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-from sfmnet.simulators.simulation import DTYPE, LinearSensor, random_directions
+from sfmnet.simulators.simulation import DTYPE, LinearSensor, channel_noise_std, random_directions
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
 
 ORIENTATION_LAWS = ("uniform", "below")
@@ -63,7 +63,7 @@ def stream_sensor(channels: int, magnitude: float, noise_fraction: float, offset
     gains = 0.1 * (1 + 0.1 * torch.randn(channels, generator=generator, dtype=DTYPE))
     shape = (directions * gains[:, None]).T
     offset = torch.randn(channels, generator=generator, dtype=DTYPE) * offset_scale
-    return LinearSensor(shape=shape, offset=offset, noise_std=noise_fraction * float(shape.norm(dim=0).mean()) * magnitude)
+    return LinearSensor(shape=shape, offset=offset, noise_std=channel_noise_std(shape, magnitude, noise_fraction))
 
 
 def random_rotations(count: int, law: str, generator: torch.Generator) -> torch.Tensor:

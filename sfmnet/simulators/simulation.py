@@ -225,6 +225,30 @@ def rotation_recording(
     )
 
 
+def channel_noise_std(shape: torch.Tensor, magnitude: float, noise_fraction: float) -> float:
+    """The simulators' reading noise (raw units): ``noise_fraction`` of a channel's mean full-load signal, ``F`` times
+    the mean column norm of ``S`` (``n x p``)."""
+    return noise_fraction * float(shape.norm(dim=0).mean()) * magnitude
+
+
+def reread_last_known_load(
+    recording: CalibrationRecording, truth: SensorTruth, noise_fraction: float, count: int, generator: torch.Generator
+) -> CalibrationRecording:
+    """``recording`` with its last (known-load) row's true load read ``count - 1`` more times, with the simulators' white
+    noise (:func:`channel_noise_std`), as an operator holding the known load for longer would record it (the mirror
+    hint kept)."""
+    shape = torch.linalg.pinv(truth.matrix).T
+    noise_std = channel_noise_std(shape, recording.magnitude, noise_fraction)
+    extra = recording.true_loads[-1] @ shape + truth.offset
+    extra = extra + noise_std * torch.randn(count - 1, shape.shape[1], generator=generator, dtype=shape.dtype)
+    return CalibrationRecording(
+        readings=torch.cat([recording.readings, extra]),
+        loads=torch.cat([recording.loads, recording.loads[-1:].expand(count - 1, -1)]),
+        magnitude=recording.magnitude,
+        mirror_hint=recording.mirror_hint,
+    )
+
+
 def least_squares_recording(
     sensor: LinearSensor,
     masses: dict[float, float],
