@@ -204,11 +204,17 @@ def unreadable_npy(tmp_path: Path) -> Action:
     return lambda: train(cfg, tmp_path / "run")
 
 
-def continuous(tmp_path: Path, poses: int, known_in_motion: bool = False, known_at_edge: bool = False) -> Action:
+def continuous(
+    tmp_path: Path, poses: int, known_in_motion: bool = False, known_at_edge: bool = False, hold: float = 2.0,
+    reverse_time: bool = False, time_scale: float = 1.0,
+) -> Action:
     """A continuous recording (sfmnet/simulators/simulated_stream.py) calibrated with its time column (static intervals on)."""
     generator = torch.Generator().manual_seed(0)
     sensor = stream_sensor(6, 9.81, noise_fraction=0.001, offset_scale=0.2, generator=generator)
-    recording = simulate_stream(sensor, 1.0, poses=poses, rate=50.0, generator=generator)
+    recording = simulate_stream(sensor, 1.0, poses=poses, hold=hold, rate=50.0, generator=generator)
+    if reverse_time:
+        recording.time[:] = recording.time.flip(0)
+    recording.time[:] = recording.time * time_scale
     if known_in_motion:
         # A load written on line 42 (data row 40), in the middle of the first move.
         recording.known_loads[40] = recording.loads[40]
@@ -390,7 +396,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "known load in motion": (lambda t: continuous(t, poses=10, known_in_motion=True), r"the known load on line 42 of .*stream.csv was recorded in motion"),
     "time cell empty": (
         lambda t: calibrate(t, edit=set_cell(6, 0, "")),
-        r"the time on line 6 of .*session.csv is empty or not a number: rows must be in strictly increasing time order",
+        r"the time on line 6 of .*session.csv is empty or not a number: rows must be in time order",
     ),
     "time cell empty after blank lines, streamed": (
         lambda t: stream(t, edit=blank_lines_after_header(2, set_cell(6, 0, ""))),
@@ -398,7 +404,21 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     ),
     "time out of order": (
         lambda t: calibrate(t, edit=set_cell(6, 0, "0.001")),
-        r"the time on line 6 of .*session.csv is not after the row before's",
+        r"the time on line 6 of .*session.csv is 0.029 s before the row before's, more than 2 ticks of 0.01 s \(jitter\)",
+    ),
+    "time in ms read as s": (
+        lambda t: continuous(t, poses=10, time_scale=1000.0),
+        r"the static-interval window of 0.5 s spans under two rows of this recording \(20 s a row\): check data.time_unit",
+    ),
+    "time running backwards": (
+        lambda t: continuous(t, poses=10, reverse_time=True),
+        r"the time column does not increase \(its median step is -0.02 s\): rows must be in time order; sort the file",
+    ),
+    # Held 0.6 s, under the 1 s shortest interval (two 0.5 s windows): the pose was still, not moving.
+    "known pose held too briefly": (
+        lambda t: continuous(t, poses=12, hold=0.6),
+        r"the known load on line \d+ of .*stream.csv was held still for only 0.\d+ s \(\d+ rows\), under the shortest "
+        r"static interval of 1.\d+ s: hold the known pose longer, or lower data.static.min_duration",
     ),
     "known load at an interval's edge": (
         lambda t: continuous(t, poses=10, known_at_edge=True),

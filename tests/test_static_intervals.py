@@ -15,6 +15,7 @@ from sfmnet.simulators.simulated_stream import ContinuousRecording, simulate_str
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
 from sfmnet.preprocessing.static_intervals import find_static_intervals
 from sfmnet.training.run import train
+from sfmnet.training.static_report import describe
 from tests.conftest import compose_config, write_session
 
 MASS = 0.8
@@ -64,6 +65,42 @@ def stream_noise(recording: ContinuousRecording) -> float:
     """The noise std seen in the first static interval (the simulated sensor's noise)."""
     first, stop = recording.intervals[0].tolist()
     return float(recording.readings[first:stop].std(dim=0).mean())
+
+
+def test_a_logger_that_keeps_only_the_holds_loses_none_of_them(tmp_path: Path):
+    """The rows in motion dropped (gaps in the time column) and 0.6 s holds, under the 1 s shortest interval:
+    each hold fills the stretch between two gaps, so each is an interval, the known poses' too."""
+    generator = torch.Generator().manual_seed(1)
+    sensor = stream_sensor(8, MASS * STANDARD_GRAVITY, noise_fraction=0.0005, offset_scale=0.2, generator=generator)
+    recording = simulate_stream(sensor, MASS, poses=12, hold=0.6, rate=50.0, generator=generator)
+    test = simulate_stream(sensor, MASS, poses=12, rate=50.0, generator=generator)
+    write_stream_csv(recording, tmp_path / "holds.csv", rows=recording.static)
+    metrics = calibrate(tmp_path / "holds.csv", tmp_path / "holds")
+    assert metrics["static/intervals"] == 12 and metrics["static/time_gaps"] == 11
+    assert metrics["static/rows_kept"] == metrics["static/rows_total"] == int(recording.static.sum())
+    assert force_error(tmp_path / "holds", test) < 0.01
+    readings, time = recording.readings[recording.static].numpy(), recording.time[recording.static].numpy()
+    found = find_static_intervals(readings, time)
+    # No window reaches across a gap, however the rows are read.
+    assert np.array_equal(find_static_intervals(readings, time, chunk_rows=97).mask, found.mask)
+    assert np.array_equal(found.intervals[1:, 0], found.gap_rows)
+    assert describe(found).endswith("; 11 gaps in the time column split the stream")
+
+
+def test_jittered_time_stamps_are_read_in_file_order():
+    """A logger stamping on receipt: 6 ms of jitter on a 20 ms period puts some stamps before the row before's;
+    a coarse clock repeats them."""
+    recording, _ = stream()
+    readings, time = recording.readings.numpy(), recording.time.numpy()
+    jittered = time + np.random.default_rng(0).normal(0.0, 0.006, len(time))
+    # 0.48 s: the default 0.5 s is 12.5 half-windows of 20 ms, where the jittered median period decides the rounding.
+    clean, found = find_static_intervals(readings, time, window=0.48), find_static_intervals(readings, jittered, window=0.48)
+    assert found.jitter_rows > 10 and not len(found.gap_rows)
+    assert np.array_equal(found.mask, clean.mask)
+    assert f"; {found.jitter_rows} stamps not after the row before's taken as jitter, in file order" in describe(found)
+    # A clock coarser than the period (40 ms ticks on 20 ms rows) repeats every other stamp: the period is their mean step.
+    coarse = find_static_intervals(readings, np.floor(time / 0.04) * 0.04, window=0.48)
+    assert coarse.period == pytest.approx(0.02, rel=1e-3) and np.array_equal(coarse.mask, clean.mask)
 
 
 def test_independent_poses_are_not_a_stream(tmp_path: Path):

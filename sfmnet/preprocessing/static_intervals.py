@@ -11,6 +11,16 @@ rest period is needed: only that at least ``noise_quantile`` of the rows are sta
 A file of independent poses (one sample per pose, in any order) is no stream: consecutive
 rows are as different as any two, and then every row is a static sample and nothing is dropped.
 
+The time column is read as a logger writes it. Its tick is the median of its positive steps (the
+period, or the clock's resolution when that is coarser) and the period is the mean step apart from
+gaps. A step longer than ``GAP_PERIODS`` ticks is a gap (a logger that drops the rows in motion, or
+loses packets): no window reaches across one and no interval spans one, and a hold that fills the
+stretch between two gaps (or a gap and the recording's end) is kept if it is one window long: the
+minimum duration guards against a pause inside a move, and a logger that kept only the holds
+leaves no move around it. A stamp at most ``JITTER_PERIODS`` ticks behind the row before's is
+jitter (a logger stamping on receipt, two packets swapped, a coarse clock repeating a stamp): the
+rows are taken in file order; a step further back is refused.
+
 Every pass reads the rows in chunks (an array or anything sliceable by rows, e.g. a memory
 map), so memory is ``O(f)`` bytes for the mask whatever the number of channels.
 """
@@ -37,6 +47,9 @@ INDEPENDENT_RATIO = 0.5
 DEFAULT_WINDOW = {True: 0.5, False: 25}   # seconds with time, rows without
 DEFAULT_THRESHOLD = 3.0
 DEFAULT_NOISE_QUANTILE = 0.1
+GAP_PERIODS = 5.0         # a time step over this many ticks splits the stream
+JITTER_PERIODS = 2.0      # a time step back by at most this many ticks is jitter, not disorder
+FULL_WINDOWS = 100        # the noise floor is taken over whole windows only when at least this many are sampled
 
 
 class Rows(Protocol):
@@ -60,8 +73,12 @@ class StaticIntervals:
             channels (about 1 at rest; zeros when ``independent``).
         threshold: the statistic below which a row is static.
         window_rows: rows in the centred moving window (odd).
-        min_rows: the shortest interval kept, rows.
-        period: seconds per row (the median step of the time column), or None without time.
+        min_rows: the shortest interval kept, rows (one window for an interval filling a stretch between gaps).
+        period: seconds per row (the time column's mean step apart from gaps), or None without time.
+        gap_rows: row indices where a gap in the time column (a step over ``GAP_PERIODS``
+            ticks) starts a new stretch of the stream; empty without time.
+        jitter_rows: rows whose time is not after the row before's, by at most ``JITTER_PERIODS``
+            ticks (taken in file order).
         serial_ratio: mean squared step between consecutive rows over twice the variance,
             averaged over channels (1: independent rows; near 0: a stream).
         independent: the rows are independent poses, not a stream: every row is kept.
@@ -79,6 +96,8 @@ class StaticIntervals:
     window_rows: int
     min_rows: int
     period: float | None
+    gap_rows: np.ndarray
+    jitter_rows: int
     serial_ratio: float
     independent: bool
     interval_times: np.ndarray | None
@@ -101,6 +120,19 @@ class StaticIntervals:
         for k, (first, stop) in enumerate(self.intervals):
             index[first:stop] = k
         return index
+
+    def still_run(self, row: int) -> tuple[int, int] | None:
+        """The half-open run of rows around ``row`` below the threshold, or None if ``row`` is in motion.
+
+        Not cut at gaps: for messages about a still stretch too short to be an interval.
+        """
+        quiet = self.statistic < self.threshold
+        if self.independent or not quiet[row]:
+            return None
+        moving = np.nonzero(~quiet)[0]
+        before = moving[moving < row]
+        after = moving[moving > row]
+        return (int(before[-1]) + 1 if len(before) else 0, int(after[0]) if len(after) else len(quiet))
 
     def near_interval(self, rows: np.ndarray) -> np.ndarray:
         """Bool per row of ``rows``: within one window of an interval (the detector's resolution at its ends)."""
@@ -133,7 +165,8 @@ def find_static_intervals(
 
     Args:
         readings: ``f x p`` raw readings in row (time) order.
-        time: ``f`` seconds, increasing; None: rows are evenly spaced and durations are in rows.
+        time: ``f`` seconds in row order (jitter and gaps allowed: module docstring); None: rows
+            are evenly spaced and durations are in rows.
         window: the centred moving window, seconds (rows without ``time``); None: 0.5 s or 25 rows.
         min_duration: the shortest static interval kept, seconds (rows without ``time``); None: two windows.
         threshold: windowed variance over the noise variance (averaged over channels) below which a
@@ -148,7 +181,8 @@ def find_static_intervals(
         :class:`StaticIntervals`.
 
     Raises:
-        SfmnetError: ``time`` is not finite and increasing, or a reading is not finite.
+        SfmnetError: ``time`` is not finite, steps back by more than ``JITTER_PERIODS`` ticks or
+            does not increase, the window spans under two rows, or a reading is not finite.
     """
     f, p = readings.shape
     if not (window is None or window > 0) or not (min_duration is None or min_duration > 0):
@@ -158,11 +192,13 @@ def find_static_intervals(
     scan = serial_scan(readings, time, chunk_rows, where)
     period = scan.period
     window = DEFAULT_WINDOW[time is not None] if window is None else window
-    half = max(1, round(window / (period or 1.0) / 2))
+    # Halves round up, so a window of exactly 12.5 half-rows is 13 however the period's sum rounded.
+    half = max(1, math.floor(window / (period or 1.0) / 2 + 0.5 + 1e-9))
     window_rows = 2 * half + 1
     min_rows = max(1, math.ceil(min_duration / (period or 1.0))) if min_duration is not None else 2 * window_rows
     common = dict(
         threshold=threshold, window_rows=window_rows, min_rows=min_rows, period=period, serial_ratio=scan.ratio,
+        gap_rows=scan.gap_rows, jitter_rows=scan.jitter_rows,
         preview_rows=scan.preview_rows, preview_time=scan.preview_time, preview_readings=scan.preview_readings,
     )
     if scan.ratio >= INDEPENDENT_RATIO:
@@ -173,12 +209,18 @@ def find_static_intervals(
             interval_times=None if time is None else np.stack([scan.time_at(rows), scan.time_at(rows)], axis=1),
             **common,
         )
-    floor = noise_floor(readings, half, noise_quantile, scan.step, chunk_rows)
+    starts = np.concatenate([[0], scan.gap_rows]).astype(np.int64)
+    if period is not None and window < 2 * period:
+        raise SfmnetError(
+            f"the static-interval window of {window:g} s spans under two rows of this recording ({period:.3g} s a row): "
+            f"check data.time_unit (a time column in ms read as s?), or set data.static.window to {2 * period:.3g} s or more"
+        )
+    floor = noise_floor(readings, half, noise_quantile, scan.step, chunk_rows, starts)
     statistic = np.empty(f, dtype=np.float32)
     used = floor > 0
-    for first, variance in moving_variances(readings, half, chunk_rows):
+    for first, variance, _ in moving_variances(readings, half, chunk_rows, starts):
         statistic[first : first + len(variance)] = (variance[:, used] / floor[used] ** 2).mean(axis=1)
-    intervals = static_runs(statistic < threshold, min_rows)
+    intervals = static_runs(statistic < threshold, min_rows, starts, window_rows)
     mask = np.zeros(f, dtype=bool)
     for first, stop in intervals:
         mask[first:stop] = True
@@ -193,10 +235,12 @@ def find_static_intervals(
 
 @dataclass(frozen=True)
 class SerialScan:
-    """One pass's summary: the serial ratio, the time step, each channel's smallest step, a preview."""
+    """One pass's summary: the serial ratio, the time step, gaps and jitter, each channel's smallest step, a preview."""
 
     ratio: float
     period: float | None
+    gap_rows: np.ndarray
+    jitter_rows: int
     step: np.ndarray
     preview_rows: np.ndarray
     preview_time: np.ndarray | None
@@ -214,13 +258,15 @@ class SerialScan:
 
 
 def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Callable[[int], str]) -> SerialScan:
-    """The serial ratio (consecutive steps against the spread), the median time step, the smallest
+    """The serial ratio (consecutive steps against the spread), the period (the mean time step apart
+    from gaps), the gaps and jittered stamps (judged against the first chunk's tick), the smallest
     nonzero step of each channel (its quantisation) and a thinned preview, in one pass."""
     f, p = readings.shape
     shift = np.asarray(readings[0:1], dtype=np.float64)[0]
     total, squares, steps = np.zeros(p), np.zeros(p), np.zeros(p)
     smallest = np.full(p, np.inf)
-    medians, previous, previous_time = [], None, None
+    tick, gaps, jitter, previous, previous_time = None, [], 0, None, None
+    step_sum, step_count = 0.0, 0  # of the steps apart from gaps: the period, a coarse clock's repeats included
     thin = max(1, math.ceil(f / PREVIEW_ROWS))
     preview_rows = np.arange(0, f, thin)
     preview, preview_time = [], []
@@ -242,26 +288,43 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
             stamps = np.asarray(time[first : first + chunk_rows], dtype=np.float64)
             joined_time = stamps if previous_time is None else np.concatenate([previous_time, stamps])
             increments = np.diff(joined_time)
-            wrong = ~np.isfinite(joined_time[1:]) | ~(increments > 0)
-            if not np.isfinite(joined_time[0]) or wrong.any():
-                offset = int(np.argmax(wrong)) + 1 if wrong.any() else 0
-                row = first - (previous_time is not None) + offset
-                what = "empty or not a number" if not np.isfinite(joined_time[offset]) else "not after the row before's"
+            base = first - (previous_time is not None)  # the row of joined_time[0]
+            bad = ~np.isfinite(joined_time)
+            if bad.any():
                 raise SfmnetError(
-                    f"the time on {where(row)} is {what}: rows must be in strictly increasing time order; "
+                    f"the time on {where(base + int(np.argmax(bad)))} is empty or not a number: rows must be in time order; "
                     "repair or drop that row (or fit without static intervals: data.static_intervals=false)"
                 )
+            if tick is None and len(increments):
+                tick = time_tick(increments)
             if len(increments):
-                medians.append(float(np.median(increments)))
+                back = increments < -JITTER_PERIODS * tick
+                if back.any():
+                    row = base + int(np.argmax(back)) + 1
+                    raise SfmnetError(
+                        f"the time on {where(row)} is {-increments[np.argmax(back)]:.3g} s before the row before's, "
+                        f"more than {JITTER_PERIODS:g} ticks of {tick:.3g} s (jitter): rows must be in time order; repair "
+                        "or drop that row (or fit without static intervals: data.static_intervals=false)"
+                    )
+                jitter += int((increments <= 0).sum())
+                gap = increments > GAP_PERIODS * tick
+                gaps.append(base + 1 + np.nonzero(gap)[0])
+                step_sum += float(increments[~gap].sum())
+                step_count += int((~gap).sum())
             preview_time.append(stamps[local])
             previous_time = stamps[-1:]
         previous = block[-1:]
     variance = squares / f - (total / f) ** 2
     spread = variance > 0
     ratio = float(np.mean(steps[spread] / max(f - 1, 1) / (2 * variance[spread]))) if spread.any() else 0.0
+    period = None if time is None else (step_sum / step_count if step_count else 1.0)
+    if period is not None and not period > 0:
+        raise not_increasing(0.0)
     return SerialScan(
         ratio=ratio,
-        period=float(np.median(medians)) if medians else (None if time is None else 1.0),
+        period=period,
+        gap_rows=np.concatenate(gaps).astype(np.int64) if gaps else np.zeros(0, dtype=np.int64),
+        jitter_rows=jitter,
         step=np.where(np.isfinite(smallest), smallest, 0.0),
         preview_rows=preview_rows,
         preview_time=np.concatenate(preview_time) if time is not None else None,
@@ -270,8 +333,30 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
     )
 
 
-def moving_variances(readings: Rows, half: int, chunk_rows: int) -> Iterator[tuple[int, np.ndarray]]:
-    """``(first row, b x p)`` blocks: each row's variance over rows ``[i - half, i + half]`` (cut at the ends).
+def time_tick(increments: np.ndarray) -> float:
+    """The clock's tick, seconds: the median positive step of ``increments`` (the first chunk's time steps).
+
+    Raises:
+        SfmnetError: no step increases the time.
+    """
+    positive = increments[increments > 0]
+    if not len(positive):
+        raise not_increasing(float(np.median(increments)))
+    return float(np.median(positive))
+
+
+def not_increasing(median_step: float) -> SfmnetError:
+    return SfmnetError(
+        f"the time column does not increase (its median step is {median_step:g} s): rows must be in time order; "
+        "sort the file by time, or fit without static intervals: data.static_intervals=false"
+    )
+
+
+def moving_variances(
+    readings: Rows, half: int, chunk_rows: int, starts: np.ndarray
+) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """``(first row, b x p variances, b counts)`` blocks: each row's variance over rows ``[i - half, i + half]``,
+    cut at the ends of its stretch (``starts``: sorted first rows of the stretches between gaps, from 0).
 
     Each chunk is read with ``half`` rows either side and shifted by its first row, so the
     cumulative sums stay small, and the same rows give the same numbers however they are read.
@@ -285,33 +370,53 @@ def moving_variances(readings: Rows, half: int, chunk_rows: int) -> Iterator[tup
         sums = np.concatenate([np.zeros((1, block.shape[1])), np.cumsum(block, axis=0)])
         squares = np.concatenate([np.zeros((1, block.shape[1])), np.cumsum(block**2, axis=0)])
         rows = np.arange(first, stop)
-        low, high = np.maximum(rows - half, 0) - start, np.minimum(rows + half + 1, f) - start
+        stretch = np.searchsorted(starts, rows, side="right") - 1
+        stretch_stop = np.append(starts, f)[stretch + 1]
+        low = np.maximum(rows - half, starts[stretch]) - start
+        high = np.minimum(rows + half + 1, stretch_stop) - start
         count = (high - low)[:, None]
         mean = (sums[high] - sums[low]) / count
-        yield first, np.maximum((squares[high] - squares[low]) / count - mean**2, 0.0)
+        yield first, np.maximum((squares[high] - squares[low]) / count - mean**2, 0.0), count[:, 0]
 
 
-def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, chunk_rows: int) -> np.ndarray:
+def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, chunk_rows: int, starts: np.ndarray) -> np.ndarray:
     """``p``: each channel's noise standard deviation, from the ``quantile`` of its windowed standard deviations.
 
     A window of ``L = 2 half + 1`` rows of Gaussian noise has ``L v / sigma^2 ~ chi2(L - 1)``, so
     the quantile of ``v`` is divided by the chi-square quantile over ``L``; the floor is at
-    least the channel's quantisation (its smallest step over sqrt(12)).
+    least the channel's quantisation (its smallest step over sqrt(12)). Windows cut short by a
+    gap or an end have fewer degrees of freedom, so a lower quantile: they are left out when
+    ``FULL_WINDOWS`` whole ones are sampled.
     """
     f = readings.shape[0]
     stride = max(1, math.ceil(f / NOISE_SAMPLES))
-    sampled = []
-    for first, variance in moving_variances(readings, half, chunk_rows):
+    sampled, counts = [], []
+    for first, variance, count in moving_variances(readings, half, chunk_rows, starts):
         sampled.append(variance[(-first) % stride :: stride])
+        counts.append(count[(-first) % stride :: stride])
+    sampled, counts = np.concatenate(sampled), np.concatenate(counts)
+    whole = counts == 2 * half + 1
+    if whole.sum() >= FULL_WINDOWS:
+        sampled = sampled[whole]
     dof = 2 * half
     z = NormalDist().inv_cdf(quantile)
     chi2_quantile = dof * max(1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof)), 0.05) ** 3  # Wilson-Hilferty
-    floor = np.sqrt(np.quantile(np.concatenate(sampled), quantile, axis=0) * (dof + 1) / chi2_quantile)
+    floor = np.sqrt(np.quantile(sampled, quantile, axis=0) * (dof + 1) / chi2_quantile)
     return np.maximum(floor, step / math.sqrt(12))
 
 
-def static_runs(quiet: np.ndarray, min_rows: int) -> np.ndarray:
-    """``k x 2`` half-open ``[first, stop)`` runs of True in ``quiet`` (``f`` bool) at least ``min_rows`` long."""
-    edges = np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]]))
-    runs = np.stack([np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]], axis=1).astype(np.int64)
-    return runs[runs[:, 1] - runs[:, 0] >= min_rows].reshape(-1, 2)
+def static_runs(quiet: np.ndarray, min_rows: int, starts: np.ndarray, window_rows: int) -> np.ndarray:
+    """``k x 2`` half-open ``[first, stop)`` runs of True in ``quiet`` (``f`` bool), none across a stretch's
+    start (``starts``: sorted, from 0), at least ``min_rows`` long, or ``window_rows`` when the run fills
+    its stretch (from a gap or the first row to the next gap or the last row)."""
+    f = len(quiet)
+    begins = np.zeros(f, dtype=bool)
+    begins[starts[starts < f]] = True
+    previous = np.concatenate([[False], quiet[:-1]])
+    first = np.nonzero(quiet & (~previous | begins))[0]
+    following = np.concatenate([quiet[1:], [False]]) & ~np.concatenate([begins[1:], [True]])
+    stop = np.nonzero(quiet & ~following)[0] + 1
+    runs = np.stack([first, stop], axis=1).astype(np.int64)
+    whole = begins[runs[:, 0]] & np.append(begins, True)[runs[:, 1]]
+    shortest = np.where(whole, window_rows, min_rows)
+    return runs[runs[:, 1] - runs[:, 0] >= shortest].reshape(-1, 2)

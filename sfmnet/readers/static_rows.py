@@ -88,6 +88,17 @@ def fitted_rows(
     """
     moving = known[~detection.mask[known] & ~detection.near_interval(known)]
     if len(moving):
+        # The known pose may have been held, just not long enough: its still rows say for how long.
+        pose = next(run for run in known_poses(known) if moving[0] in run)
+        still = next((run for run in map(detection.still_run, pose.tolist()) if run is not None), None)
+        if still is not None:
+            rows = still[1] - still[0]
+            length = f"{rows} rows" if detection.period is None else f"{rows * detection.period:.3g} s ({rows} rows)"
+            shortest = f"{detection.min_rows} rows" if detection.period is None else f"{detection.min_rows * detection.period:.3g} s"
+            raise SfmnetError(
+                f"the known load on {where(int(moving[0]))} was held still for only {length}, under the shortest static "
+                f"interval of {shortest}: hold the known pose longer, or lower data.static.min_duration"
+            )
         raise SfmnetError(
             f"the known load on {where(int(moving[0]))} was recorded in motion (no static interval within a window): "
             "fill the load columns only while the mass is held still, or tune data.static"
@@ -95,7 +106,7 @@ def fitted_rows(
     if not detection.independent and len(known):
         # A run of consecutive known rows is one known pose: some of its rows may fall at an interval's
         # end, but if all do, a known load would vanish without a word.
-        for run in np.split(known, np.nonzero(np.diff(known) > 1)[0] + 1):
+        for run in known_poses(known):
             if not detection.mask[run].any():
                 raise SfmnetError(
                     f"the known load on {where(int(run[0]))} lies at the edge of a static interval, within a window of "
@@ -111,3 +122,8 @@ def fitted_rows(
         )
     return detection.mask
 
+
+
+def known_poses(known: np.ndarray) -> list[np.ndarray]:
+    """The runs of consecutive rows in ``known`` (sorted row indices): one per known pose."""
+    return np.split(known, np.nonzero(np.diff(known) > 1)[0] + 1)

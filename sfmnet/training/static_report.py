@@ -17,7 +17,7 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
     """Write ``static_intervals.csv`` and ``figures/static_intervals.png`` (also to ``logger``'s TensorBoard).
 
     Returns:
-        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, and the console
+        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, ``static/time_gaps``, and the console
         line (empty and None without detection).
     """
     detection = data.static_intervals
@@ -33,6 +33,7 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
         "static/intervals": float(detection.count),
         "static/rows_kept": float(detection.rows_kept),
         "static/rows_total": float(len(detection.mask)),
+        "static/time_gaps": float(len(detection.gap_rows)),
     }
     return metrics, line
 
@@ -50,9 +51,15 @@ def describe(detection: StaticIntervals) -> str:
     else:
         window, shortest = detection.window_rows * detection.period, detection.min_rows * detection.period
         settings = f"window {window:.3g} s, intervals of at least {shortest:.3g} s"
+    time_notes = []
+    if len(detection.gap_rows):
+        time_notes.append(f"{len(detection.gap_rows)} gaps in the time column split the stream")
+    if detection.jitter_rows:
+        time_notes.append(f"{detection.jitter_rows} stamps not after the row before's taken as jitter, in file order")
     return (
         f"static intervals: {detection.count} found, {kept:,} of {total:,} rows kept "
         f"({settings}, threshold {detection.threshold:g} x the noise variance)"
+        + "".join(f"; {note}" for note in time_notes)
     )
 
 
