@@ -123,6 +123,26 @@ def test_too_few_poses_under_many_labels_point_to_the_groups():
     assert any("only 4 distinct orientations (poses) (the rows of one static interval or data.group_column label" in w for w in warnings), warnings
 
 
+@pytest.mark.parametrize("poses", [4, 8])
+def test_poses_that_only_just_determine_the_calibration_are_not_trusted(poses: int):
+    """The fingertip with offsets has 5 unknowns; 4 held poses and a known load (2 equations, 1 of them spent on the
+    frame) give exactly 5: the fit passes through them, and a session of these came out 8.7x its bars, trusted."""
+    datamodule = FingertipDataModule(
+        magnitude=111.4, samples=96, noise_fraction=0.01, seed=7, poses=poses, orientation_law="poses", offset_scale=0.1,
+    )
+    datamodule.setup()
+    recording = datamodule.data.recordings["rotation"]
+    model = refined(ShapeFromMotion(refinement="alternation"), recording)
+    loads = model.fitted_loads(recording)
+    metrics, warnings, goodness = calibration_diagnostics(
+        model, recording, ["a", "b", "c", "d"], loads, model.uncertainty(recording, loads), "gf"
+    )
+    just = [w for w in warnings if "only just determine the 5 unknowns of the shape and offsets" in w]
+    assert bool(just) == (poses == 4), warnings
+    assert goodness.trustworthy == (poses == 8)
+    assert metrics["goodness/pose_equations"] == (5 if poses == 4 else 6)
+
+
 def test_too_few_poses_with_known_loads_still_check_the_known_loads():
     """A hostile tester's grouped CSV (30 one-row poses in a 10-degree cap, two known-load rows): the pose warning's
     text had taken over the name of the groups, and the known-load check after it indexed that string (a TypeError

@@ -211,9 +211,11 @@ def distinct_poses(
 
     Rows held in one orientation repeat one equation ``|m| = F``: only distinct directions count
     (:func:`~sfmnet.linalg.directions.distinct_directions`, within ``POSE_NOISE_SIGMAS`` of a
-    direction's noise ``s |C|_F sqrt((n-1)/n) / F``), and a distinct known load gives ``n``. Where
+    direction's noise ``s |C|_F sqrt((n-1)/n) / F``), and a distinct known load gives ``n``, less the
+    ``n(n-1)/2`` that turn the frame into the known loads' (a rotation the poses alone leave free). Where
     they number fewer than ``n(n+1)/2 (+ n)`` (:func:`~sfmnet.linalg.factorisation.metric_unknowns`)
-    the shape is not determined, however many rows repeat them. Fitted row by row (untied), the error bars
+    the shape is not determined, however many rows repeat them; where they number exactly that, it is
+    determined with nothing left to test it. Fitted row by row (untied), the error bars
     need ``n(n+1)/2`` more (:func:`~sfmnet.eval.goodness_of_fit.untied_extra_poses`): where fewer are found, the
     rows' median angle from their pose's mean (:func:`~sfmnet.linalg.directions.median_angle_from_poses`) over a
     direction's RMS noise says whether they were held there (about 0.8) or sweep between them. One constant-magnitude
@@ -230,9 +232,12 @@ def distinct_poses(
     angle = noise_std * float(model.calibration_matrix().norm()) * math.sqrt((n - 1) / n) / magnitude
     tolerance = min(POSE_NOISE_SIGMAS * angle, MAX_POSE_TOLERANCE)
     directions = loads[~known] / loads[~known].norm(dim=1, keepdim=True)
-    leaders = distinct_directions(directions, tolerance, enough)
+    frame = n * (n - 1) // 2 if recording.distinct_known_loads else 0
+    known_equations = n * recording.distinct_known_loads - frame
+    # Counted one past what suffices: a calibration the poses only just determine is told from one they over-determine.
+    leaders = distinct_directions(directions, tolerance, max(enough - known_equations, 0) + 1)
+    equations = len(leaders) + known_equations
     scatter = float("nan")
-    if 0 < len(leaders) < enough and angle > 0:
+    if len(leaders) and equations < enough and angle > 0:
         scatter = median_angle_from_poses(directions, leaders) / angle
-    equations = len(leaders) + n * recording.distinct_known_loads
     return PoseEquations(equations, needed, tied, untied_needed, scatter)

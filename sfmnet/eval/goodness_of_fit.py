@@ -93,8 +93,8 @@ MAX_HELD_POSE_SCATTER = 1.5
 
 
 class PoseEquations(NamedTuple):
-    """The equations ``|m| = F`` the rows' distinct poses give (counted up to ``needed``, untied up to
-    ``untied_needed``), the shape's unknowns (``needed``), whether the fit tied each group's rows to one direction
+    """The equations ``|m| = F`` the rows' distinct poses give, with the known loads' net of the frame they fix
+    (counted one past ``needed``, untied past ``untied_needed``), the shape's unknowns (``needed``), whether the fit tied each group's rows to one direction
     (then a group is one pose), the poses untied error bars need (``needed +`` :func:`untied_extra_poses`) and, where
     fewer poses were found than counted up to, the rows' median angle from their pose's mean over one direction's RMS
     noise (NaN elsewhere)."""
@@ -421,6 +421,13 @@ def goodness_of_fit(
                 f"unknowns of the shape{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: "
                 f"the calibration is not determined by them, however many rows repeat them; record at least {needed} poses "
                 "(dozens give a good calibration)"
+            )
+        elif tied and equations == needed:
+            warnings.append(
+                f"the rows' {equations} distinct orientations (poses, a known load counting for its equations) only just "
+                f"determine the {needed} unknowns of the shape{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: "
+                "the fit passes through every pose, so no check can test it and another calibration may fit them as "
+                f"exactly; record at least {needed + 1} poses (dozens give a good calibration)"
             )
         elif not tied and equations < untied_needed and scatter <= MAX_HELD_POSE_SCATTER:
             warnings.append(
