@@ -206,15 +206,15 @@ def unreadable_npy(tmp_path: Path) -> Action:
 
 def continuous(
     tmp_path: Path, poses: int, known_in_motion: bool = False, known_at_edge: bool = False, hold: float = 2.0,
-    reverse_time: bool = False, time_scale: float = 1.0,
+    retime: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ) -> Action:
-    """A continuous recording (sfmnet/simulators/simulated_stream.py) calibrated with its time column (static intervals on)."""
+    """A continuous recording (sfmnet/simulators/simulated_stream.py) calibrated with its time column (static intervals
+    on); ``retime`` rewrites the time column as a faulty logger would."""
     generator = torch.Generator().manual_seed(0)
     sensor = stream_sensor(6, 9.81, noise_fraction=0.001, offset_scale=0.2, generator=generator)
     recording = simulate_stream(sensor, 1.0, poses=poses, hold=hold, rate=50.0, generator=generator)
-    if reverse_time:
-        recording.time[:] = recording.time.flip(0)
-    recording.time[:] = recording.time * time_scale
+    if retime is not None:
+        recording.time[:] = retime(recording.time)
     if known_in_motion:
         # A load written on line 42 (data row 40), in the middle of the first move.
         recording.known_loads[40] = recording.loads[40]
@@ -407,18 +407,28 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         r"the time on line 6 of .*session.csv is 0.029 s before the row before's, more than 2 ticks of 0.01 s \(jitter\)",
     ),
     "time in ms read as s": (
-        lambda t: continuous(t, poses=10, time_scale=1000.0),
+        lambda t: continuous(t, poses=10, retime=lambda time: time * 1000),
         r"the static-interval window of 0.5 s spans under two rows of this recording \(20 s a row\): check data.time_unit",
     ),
+    "time in s read as ms": (
+        lambda t: continuous(t, poses=10, retime=lambda time: time / 1000),
+        r"the static-interval window of 0.5 s spans [\d,]+ rows, over a quarter of the recording's 1,750 \(2e-05 s a row\): "
+        r"check data.time_unit \(a time column in s read as ms\?\)",
+    ),
+    # Every third row 10 periods after the one before (a rate that changes within the file, or stamps not the rows').
+    "time column of two rates": (
+        lambda t: continuous(t, poses=10, retime=lambda time: time + 0.2 * (torch.arange(len(time)) // 3)),
+        r"583 of the time column's 1,749 steps are gaps \(over 5 ticks of 0.02 s\): its rate changes within the file",
+    ),
     "time running backwards": (
-        lambda t: continuous(t, poses=10, reverse_time=True),
+        lambda t: continuous(t, poses=10, retime=lambda time: time.flip(0)),
         r"the time column does not increase \(its median step is -0.02 s\): rows must be in time order; sort the file",
     ),
     # Held 0.6 s, under the 1 s shortest interval (two 0.5 s windows): the pose was still, not moving.
     "known pose held too briefly": (
         lambda t: continuous(t, poses=12, hold=0.6),
         r"the known load on line \d+ of .*stream.csv was held still for only 0.\d+ s \(\d+ rows\), under the shortest "
-        r"static interval of 1.\d+ s: hold the known pose longer, or lower data.static.min_duration",
+        r"static interval of 1.\d+ s there: hold the known pose longer, or lower data.static.min_duration",
     ),
     "known load at an interval's edge": (
         lambda t: continuous(t, poses=10, known_at_edge=True),

@@ -85,6 +85,8 @@ def test_a_logger_that_keeps_only_the_holds_loses_none_of_them(tmp_path: Path):
     assert np.array_equal(find_static_intervals(readings, time, chunk_rows=97).mask, found.mask)
     assert np.array_equal(found.intervals[1:, 0], found.gap_rows)
     assert describe(found).endswith("; 11 gaps in the time column split the stream")
+    # A hold that fills its stretch needs no more than the minimum duration either, when that is under a window.
+    assert find_static_intervals(readings, time, window=0.8, min_duration=0.2).count == 12
 
 
 def test_jittered_time_stamps_are_read_in_file_order():

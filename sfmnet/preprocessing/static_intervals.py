@@ -49,6 +49,7 @@ DEFAULT_THRESHOLD = 3.0
 DEFAULT_NOISE_QUANTILE = 0.1
 GAP_PERIODS = 5.0         # a time step over this many ticks splits the stream
 JITTER_PERIODS = 2.0      # a time step back by at most this many ticks is jitter, not disorder
+MAX_GAP_FRACTION = 0.1    # more of the steps gaps than this: the time column is not one clock at one rate
 FULL_WINDOWS = 100        # the noise floor is taken over whole windows only when at least this many are sampled
 
 
@@ -121,18 +122,23 @@ class StaticIntervals:
             index[first:stop] = k
         return index
 
-    def still_run(self, row: int) -> tuple[int, int] | None:
-        """The half-open run of rows around ``row`` below the threshold, or None if ``row`` is in motion.
+    def still(self, rows: np.ndarray) -> np.ndarray:
+        """Bool per row of ``rows``: below the threshold (held still, whether or not in an interval)."""
+        return np.ones(len(rows), dtype=bool) if self.independent else self.statistic[rows] < self.threshold
 
-        Not cut at gaps: for messages about a still stretch too short to be an interval.
-        """
-        quiet = self.statistic < self.threshold
-        if self.independent or not quiet[row]:
+    def still_run(self, row: int) -> tuple[int, int, int] | None:
+        """The half-open run ``[first, stop)`` of still rows around ``row`` within its stretch between gaps, and the
+        fewest rows such a run needs to be an interval (:func:`shortest_interval`); None if ``row`` is in motion."""
+        if self.independent or not self.still(np.array([row]))[0]:
             return None
-        moving = np.nonzero(~quiet)[0]
-        before = moving[moving < row]
-        after = moving[moving > row]
-        return (int(before[-1]) + 1 if len(before) else 0, int(after[0]) if len(after) else len(quiet))
+        starts = np.concatenate([[0], self.gap_rows])
+        k = int(np.searchsorted(starts, row, side="right")) - 1
+        low, high = int(starts[k]), int(starts[k + 1]) if k + 1 < len(starts) else len(self.mask)
+        moving = np.nonzero(self.statistic[low:high] >= self.threshold)[0] + low
+        before, after = moving[moving < row], moving[moving > row]
+        first, stop = int(before[-1]) + 1 if len(before) else low, int(after[0]) if len(after) else high
+        fewest = int(shortest_interval(np.array(first == low and stop == high), self.min_rows, self.window_rows))
+        return first, stop, fewest
 
     def near_interval(self, rows: np.ndarray) -> np.ndarray:
         """Bool per row of ``rows``: within one window of an interval (the detector's resolution at its ends)."""
@@ -182,7 +188,8 @@ def find_static_intervals(
 
     Raises:
         SfmnetError: ``time`` is not finite, steps back by more than ``JITTER_PERIODS`` ticks or
-            does not increase, the window spans under two rows, or a reading is not finite.
+            does not increase or has gaps at over ``MAX_GAP_FRACTION`` of its steps, the window spans under two
+            rows or over a quarter of them, or a reading is not finite.
     """
     f, p = readings.shape
     if not (window is None or window > 0) or not (min_duration is None or min_duration > 0):
@@ -215,6 +222,19 @@ def find_static_intervals(
             f"the static-interval window of {window:g} s spans under two rows of this recording ({period:.3g} s a row): "
             f"check data.time_unit (a time column in ms read as s?), or set data.static.window to {2 * period:.3g} s or more"
         )
+    if period is not None and len(scan.gap_rows) > MAX_GAP_FRACTION * f:
+        raise SfmnetError(
+            f"{len(scan.gap_rows):,} of the time column's {f - 1:,} steps are gaps (over {GAP_PERIODS:g} ticks of "
+            f"{scan.tick:.3g} s): its rate changes within the file or its stamps are not the rows' times; split the file "
+            "where the rate changes, or find the intervals in row order (data.static_intervals=true, data.time_column=null "
+            "and data.channel_columns naming the channels)"
+        )
+    if period is not None and 4 * window_rows > f:
+        raise SfmnetError(
+            f"the static-interval window of {window:g} s spans {window_rows:,} rows, over a quarter of the recording's "
+            f"{f:,} ({period:.3g} s a row): check data.time_unit (a time column in s read as ms?), or set "
+            "data.static.window shorter than a hold"
+        )
     floor = noise_floor(readings, half, noise_quantile, scan.step, chunk_rows, starts)
     statistic = np.empty(f, dtype=np.float32)
     used = floor > 0
@@ -239,6 +259,7 @@ class SerialScan:
 
     ratio: float
     period: float | None
+    tick: float | None
     gap_rows: np.ndarray
     jitter_rows: int
     step: np.ndarray
@@ -323,6 +344,7 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
     return SerialScan(
         ratio=ratio,
         period=period,
+        tick=tick,
         gap_rows=np.concatenate(gaps).astype(np.int64) if gaps else np.zeros(0, dtype=np.int64),
         jitter_rows=jitter,
         step=np.where(np.isfinite(smallest), smallest, 0.0),
@@ -407,8 +429,8 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
 
 def static_runs(quiet: np.ndarray, min_rows: int, starts: np.ndarray, window_rows: int) -> np.ndarray:
     """``k x 2`` half-open ``[first, stop)`` runs of True in ``quiet`` (``f`` bool), none across a stretch's
-    start (``starts``: sorted, from 0), at least ``min_rows`` long, or ``window_rows`` when the run fills
-    its stretch (from a gap or the first row to the next gap or the last row)."""
+    start (``starts``: sorted, from 0), as long as :func:`shortest_interval` asks (``min_rows``, or at most one
+    window where the run fills its stretch, from a gap or the first row to the next gap or the last row)."""
     f = len(quiet)
     begins = np.zeros(f, dtype=bool)
     begins[starts[starts < f]] = True
@@ -418,5 +440,10 @@ def static_runs(quiet: np.ndarray, min_rows: int, starts: np.ndarray, window_row
     stop = np.nonzero(quiet & ~following)[0] + 1
     runs = np.stack([first, stop], axis=1).astype(np.int64)
     whole = begins[runs[:, 0]] & np.append(begins, True)[runs[:, 1]]
-    shortest = np.where(whole, window_rows, min_rows)
-    return runs[runs[:, 1] - runs[:, 0] >= shortest].reshape(-1, 2)
+    return runs[runs[:, 1] - runs[:, 0] >= shortest_interval(whole, min_rows, window_rows)].reshape(-1, 2)
+
+
+def shortest_interval(whole: np.ndarray, min_rows: int, window_rows: int) -> np.ndarray:
+    """The fewest rows a run of still rows needs to be an interval: ``min_rows``, or no more than one window where
+    the run fills its stretch between gaps (``whole``, bool array)."""
+    return np.where(whole, min(window_rows, min_rows), min_rows)

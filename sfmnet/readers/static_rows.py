@@ -76,9 +76,10 @@ def fitted_rows(
 ) -> np.ndarray:
     """``f`` bool, the rows to fit: the static ones.
 
-    A known-load row at an interval's end (within a window: the detector's resolution) is left
-    out like its neighbours; one farther from every interval was recorded in motion, which no
-    calibration can use.
+    A known-load row at an interval's end (within a window: the detector's resolution), or held
+    still in a run too short to be an interval, is left out like its neighbours, as long as some
+    rows of its known pose (a run of consecutive known rows) are fitted; one in motion farther
+    from every interval was recorded in motion, which no calibration can use.
 
     Args:
         known: row indices (int) of the known-load rows.
@@ -86,33 +87,16 @@ def fitted_rows(
         where: a row's place in the file for messages, e.g. ``line 17 of session.csv``.
         check_count: refuse fewer intervals than unknowns (single-mass sessions).
     """
-    moving = known[~detection.mask[known] & ~detection.near_interval(known)]
+    if not detection.independent:
+        for pose in known_poses(known):
+            if len(pose) and not detection.mask[pose].any():
+                unfitted_known_pose(detection, pose, where)
+    moving = known[~detection.mask[known] & ~detection.near_interval(known) & ~detection.still(known)]
     if len(moving):
-        # The known pose may have been held, just not long enough: its still rows say for how long.
-        pose = next(run for run in known_poses(known) if moving[0] in run)
-        still = next((run for run in map(detection.still_run, pose.tolist()) if run is not None), None)
-        if still is not None:
-            rows = still[1] - still[0]
-            length = f"{rows} rows" if detection.period is None else f"{rows * detection.period:.3g} s ({rows} rows)"
-            shortest = f"{detection.min_rows} rows" if detection.period is None else f"{detection.min_rows * detection.period:.3g} s"
-            raise SfmnetError(
-                f"the known load on {where(int(moving[0]))} was held still for only {length}, under the shortest static "
-                f"interval of {shortest}: hold the known pose longer, or lower data.static.min_duration"
-            )
         raise SfmnetError(
             f"the known load on {where(int(moving[0]))} was recorded in motion (no static interval within a window): "
             "fill the load columns only while the mass is held still, or tune data.static"
         )
-    if not detection.independent and len(known):
-        # A run of consecutive known rows is one known pose: some of its rows may fall at an interval's
-        # end, but if all do, a known load would vanish without a word.
-        for run in known_poses(known):
-            if not detection.mask[run].any():
-                raise SfmnetError(
-                    f"the known load on {where(int(run[0]))} lies at the edge of a static interval, within a window of "
-                    "motion, so none of its rows would be fitted: fill the load columns on rows held still (the whole "
-                    "hold), or shorten data.static.window"
-                )
     needed = metric_unknowns(axes, True)
     if check_count and not detection.independent and detection.count < needed:
         raise SfmnetError(
@@ -127,3 +111,25 @@ def fitted_rows(
 def known_poses(known: np.ndarray) -> list[np.ndarray]:
     """The runs of consecutive rows in ``known`` (sorted row indices): one per known pose."""
     return np.split(known, np.nonzero(np.diff(known) > 1)[0] + 1)
+
+
+def unfitted_known_pose(detection: StaticIntervals, pose: np.ndarray, where: Callable[[int], str]) -> None:
+    """Refuse a known pose none of whose rows is in an interval, saying why: held still too briefly (its longest
+    still run, against what that run needed), or only within a window of motion."""
+    runs = [run for run in map(detection.still_run, pose[detection.still(pose)].tolist()) if run is not None]
+    if runs:
+        first, stop, fewest = max(runs, key=lambda run: run[1] - run[0])
+        rows = stop - first
+        seconds = lambda count: f"{count} rows" if detection.period is None else f"{count * detection.period:.3g} s"  # noqa: E731
+        limit = "data.static.window" if fewest < detection.min_rows else "data.static.min_duration"
+        raise SfmnetError(
+            f"the known load on {where(int(pose[0]))} was held still for only {seconds(rows)}"
+            f"{f' ({rows} rows)' if detection.period is not None else ''}, under the shortest static interval of "
+            f"{seconds(fewest)} there: hold the known pose longer, or lower {limit}"
+        )
+    if detection.near_interval(pose).all():
+        raise SfmnetError(
+            f"the known load on {where(int(pose[0]))} lies at the edge of a static interval, within a window of "
+            "motion, so none of its rows would be fitted: fill the load columns on rows held still (the whole "
+            "hold), or shorten data.static.window"
+        )
