@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from pathlib import Path
 
@@ -103,6 +104,23 @@ def test_jittered_time_stamps_are_read_in_file_order():
     # A clock coarser than the period (40 ms ticks on 20 ms rows) repeats every other stamp: the period is their mean step.
     coarse = find_static_intervals(readings, np.floor(time / 0.04) * 0.04, window=0.48)
     assert coarse.period == pytest.approx(0.02, rel=1e-3) and np.array_equal(coarse.mask, clean.mask)
+
+
+def test_rows_logged_twice_are_not_counted_as_new_measurements(tmp_path: Path):
+    """A logger polling twice per sensor update writes every reading twice: the fit is as good, its error bars
+    (which count every row) are sqrt(2) too small, and the run says so."""
+    recording, _ = stream(poses=10)
+    twice = dataclasses.replace(recording, **{
+        name: getattr(recording, name).repeat_interleave(2, dim=0) for name in ("time", "readings", "loads", "known_loads", "static", "pose")
+    })
+    write_stream_csv(twice, tmp_path / "twice.csv")
+    metrics = calibrate(tmp_path / "twice.csv", tmp_path / "twice")
+    warnings = json.loads((tmp_path / "twice" / "calibration.json").read_text())["warnings"]
+    assert any(w.startswith("50.0 % of the rows repeat the row before on every channel") for w in warnings), warnings
+    assert metrics["error_bars_trustworthy"] == 0.0
+    write_stream_csv(recording, tmp_path / "once.csv")
+    calibrate(tmp_path / "once.csv", tmp_path / "once")
+    assert not any("repeat the row before" in w for w in json.loads((tmp_path / "once" / "calibration.json").read_text())["warnings"])
 
 
 def test_independent_poses_are_not_a_stream(tmp_path: Path):

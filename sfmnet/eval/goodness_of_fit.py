@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import numpy as np
 import torch
 
 from sfmnet.linalg.group_means import group_means
@@ -34,6 +35,8 @@ OUTLIER_Z = 3.72
 # The standardised magnitudes' RMS may exceed 1 by this much (1.25 measured with a 1 % quadratic term,
 # whose matrix errors were 1.8x the error bars).
 MAX_CONSTRAINT_RATIO = 1.2
+# Rows repeating the row before on every channel, as a fraction of the steps (the real accelerometer stream: 0.18 %).
+MAX_REPEATED_FRACTION = 0.01
 # Pose means may miss the model by this much more than white noise within the poses explains.
 MAX_POSE_MISFIT_RATIO = 2.0
 # ... and by no more than chance allows: the standard-normal quantile (p ~ 1e-3) their chi-square may reach. A bias
@@ -191,6 +194,31 @@ def pose_misfit_z(poses: PoseMeans, noise: float, parameters: int) -> float:
         return math.nan
     a = 2 / (9 * nu)
     return ((float(poses.squares.sum()) / noise**2 / nu) ** (1 / 3) - (1 - a)) / math.sqrt(a)
+
+
+def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int) -> str | None:
+    """A warning when rows repeat the row before on every channel far more often than chance, or None.
+
+    Channels that repeat by chance (readings coarser than their noise) seldom all repeat together: their
+    joint repeats are near the product of their rates. Rows repeated whole (a logger polling faster than
+    the sensor updates, duplicated lines) repeat on every channel at once, as often as the least
+    repeating channel does. Either way they are not new measurements, and error bars that count every row
+    as one are too small. Flagged past ``MAX_REPEATED_FRACTION`` of the steps and half the least
+    repeating channel's rate.
+
+    Args:
+        repeated: rows equal to the row before on every channel; channel_repeats: ``p`` such counts per
+            channel alone; steps: row-to-row steps (rows - 1).
+    """
+    least = int(channel_repeats.min()) if len(channel_repeats) else 0
+    if steps <= 0 or repeated <= MAX_REPEATED_FRACTION * steps or repeated <= 0.5 * least:
+        return None
+    return (
+        f"{100 * repeated / steps:.1f} % of the rows repeat the row before on every channel (a logger polling faster "
+        "than the sensor updates, duplicated rows, or readings coarser than their noise): repeated readings are not new "
+        "measurements, so the error bars, which count every row, are too small; drop the repeats or log at the "
+        "sensor's own rate"
+    )
 
 
 def constraint_noise_ratio(loads: torch.Tensor, off_space: torch.Tensor, matrix: torch.Tensor, magnitude: float) -> float:

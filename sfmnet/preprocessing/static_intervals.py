@@ -80,6 +80,8 @@ class StaticIntervals:
             ticks) starts a new stretch of the stream; empty without time.
         jitter_rows: rows whose time is not after the row before's, by at most ``JITTER_PERIODS``
             ticks (taken in file order).
+        repeated_rows: rows equal to the row before on every channel.
+        channel_repeats: ``p`` int, rows equal to the row before on each channel alone.
         serial_ratio: mean squared step between consecutive rows over twice the variance,
             averaged over channels (1: independent rows; near 0: a stream).
         independent: the rows are independent poses, not a stream: every row is kept.
@@ -99,6 +101,8 @@ class StaticIntervals:
     period: float | None
     gap_rows: np.ndarray
     jitter_rows: int
+    repeated_rows: int
+    channel_repeats: np.ndarray
     serial_ratio: float
     independent: bool
     interval_times: np.ndarray | None
@@ -205,7 +209,8 @@ def find_static_intervals(
     min_rows = max(1, math.ceil(min_duration / (period or 1.0))) if min_duration is not None else 2 * window_rows
     common = dict(
         threshold=threshold, window_rows=window_rows, min_rows=min_rows, period=period, serial_ratio=scan.ratio,
-        gap_rows=scan.gap_rows, jitter_rows=scan.jitter_rows,
+        gap_rows=scan.gap_rows, jitter_rows=scan.jitter_rows, repeated_rows=scan.repeated_rows,
+        channel_repeats=scan.channel_repeats,
         preview_rows=scan.preview_rows, preview_time=scan.preview_time, preview_readings=scan.preview_readings,
     )
     if scan.ratio >= INDEPENDENT_RATIO:
@@ -262,6 +267,8 @@ class SerialScan:
     tick: float | None
     gap_rows: np.ndarray
     jitter_rows: int
+    repeated_rows: int
+    channel_repeats: np.ndarray
     step: np.ndarray
     preview_rows: np.ndarray
     preview_time: np.ndarray | None
@@ -285,6 +292,7 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
     f, p = readings.shape
     shift = np.asarray(readings[0:1], dtype=np.float64)[0]
     total, squares, steps = np.zeros(p), np.zeros(p), np.zeros(p)
+    repeated, channel_repeats = 0, np.zeros(p, dtype=np.int64)
     smallest = np.full(p, np.inf)
     tick, gaps, jitter, previous, previous_time = None, [], 0, None, None
     step_sum, step_count = 0.0, 0  # of the steps apart from gaps: the period, a coarse clock's repeats included
@@ -298,6 +306,9 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
             raise SfmnetError(f"{where(first + int(np.argmax(bad)))} has a NaN or infinite reading: repair or drop that row")
         joined = block if previous is None else np.concatenate([previous, block])
         difference = np.abs(np.diff(joined, axis=0))
+        same = difference == 0
+        repeated += int(same.all(axis=1).sum())
+        channel_repeats += same.sum(axis=0)
         steps += (difference**2).sum(axis=0)
         nonzero = np.where(difference > 0, difference, np.inf)
         smallest = np.minimum(smallest, nonzero.min(axis=0, initial=np.inf))
@@ -345,6 +356,8 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
         ratio=ratio,
         period=period,
         tick=tick,
+        repeated_rows=repeated,
+        channel_repeats=channel_repeats,
         gap_rows=np.concatenate(gaps).astype(np.int64) if gaps else np.zeros(0, dtype=np.int64),
         jitter_rows=jitter,
         step=np.where(np.isfinite(smallest), smallest, 0.0),

@@ -22,6 +22,7 @@ from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import method_title, motion_figure, spectrum_figure
 from sfmnet.eval.held_out import load_errors, magnitude_errors
+from sfmnet.eval.goodness_of_fit import repeated_rows_warning
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.linalg.uncertainty import relative_matrix_std
 from sfmnet.models.linear_calibrator import LinearCalibrator
@@ -63,9 +64,14 @@ class CalibrationTask(Task):
             outlying = torch.zeros(len(loads), dtype=torch.bool)
             outlying[goodness.outlier_rows] = True
             uncertainty = model.uncertainty(recording.without(outlying), loads[~outlying])
-        warnings = [*data.warnings, *model.fit_warnings, *warnings]
-        # The error bars assume the model and a fit that worked; a failed check or fit says they cannot be believed.
-        trustworthy = goodness.trustworthy and not model.fit_failed
+        detection = data.static_intervals
+        repeats = None if detection is None else repeated_rows_warning(
+            detection.repeated_rows, detection.channel_repeats, len(detection.mask) - 1
+        )
+        warnings = [*data.warnings, *model.fit_warnings, *warnings, *([repeats] if repeats else [])]
+        # The error bars assume the model, independent rows and a fit that worked; a failed check or fit says they
+        # cannot be believed.
+        trustworthy = goodness.trustworthy and not model.fit_failed and repeats is None
         calibration = model.to_calibration(
             data.channels,
             data.axes,
