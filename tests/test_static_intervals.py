@@ -118,6 +118,7 @@ def test_rows_logged_twice_are_not_counted_as_new_measurements(tmp_path: Path):
     warnings = json.loads((tmp_path / "twice" / "calibration.json").read_text())["warnings"]
     assert any(w.startswith("50.0 % of the rows repeat the row before on every channel") for w in warnings), warnings
     assert metrics["error_bars_trustworthy"] == 0.0
+    assert metrics["static/repeated_rows"] == len(recording.time)
     write_stream_csv(recording, tmp_path / "once.csv")
     calibrate(tmp_path / "once.csv", tmp_path / "once")
     assert not any("repeat the row before" in w for w in json.loads((tmp_path / "once" / "calibration.json").read_text())["warnings"])

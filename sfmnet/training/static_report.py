@@ -17,7 +17,7 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
     """Write ``static_intervals.csv`` and ``figures/static_intervals.png`` (also to ``logger``'s TensorBoard).
 
     Returns:
-        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, ``static/time_gaps``, and the console
+        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, ``static/time_gaps``, ``static/repeated_rows``, and the console
         line (empty and None without detection).
     """
     detection = data.static_intervals
@@ -34,6 +34,7 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
         "static/rows_kept": float(detection.rows_kept),
         "static/rows_total": float(len(detection.mask)),
         "static/time_gaps": float(len(detection.gap_rows)),
+        "static/repeated_rows": float(detection.repeated_rows),
     }
     return metrics, line
 
