@@ -15,9 +15,9 @@ The time column is read as a logger writes it. Its tick is the median of its pos
 period, or the clock's resolution when that is coarser) and the period is the mean step apart from
 gaps. A step longer than ``GAP_PERIODS`` ticks is a gap (a logger that drops the rows in motion, or
 loses packets): no window reaches across one and no interval spans one, and a hold that fills the
-stretch between two gaps (or a gap and the recording's end) is kept if it is one window long: the
-minimum duration guards against a pause inside a move, and a logger that kept only the holds
-leaves no move around it. A stamp at most ``JITTER_PERIODS`` ticks behind the row before's is
+stretch between two gaps (or a gap and the recording's end) is kept if it is one window long (or
+the minimum duration, if shorter): the minimum duration guards against a pause inside a move, and a
+logger that kept only the holds leaves no move around it. A stamp at most ``JITTER_PERIODS`` ticks behind the row before's is
 jitter (a logger stamping on receipt, two packets swapped, a coarse clock repeating a stamp): the
 rows are taken in file order; a step further back is refused.
 
@@ -74,7 +74,7 @@ class StaticIntervals:
             channels (about 1 at rest; zeros when ``independent``).
         threshold: the statistic below which a row is static.
         window_rows: rows in the centred moving window (odd).
-        min_rows: the shortest interval kept, rows (one window for an interval filling a stretch between gaps).
+        min_rows: the shortest interval kept, rows (at most a window for one filling its stretch between gaps).
         period: seconds per row (the time column's mean step apart from gaps), or None without time.
         gap_rows: row indices where a gap in the time column (a step over ``GAP_PERIODS``
             ticks) starts a new stretch of the stream; empty without time.
@@ -351,7 +351,7 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
     ratio = float(np.mean(steps[spread] / max(f - 1, 1) / (2 * variance[spread]))) if spread.any() else 0.0
     period = None if time is None else (step_sum / step_count if step_count else 1.0)
     if period is not None and not period > 0:
-        raise not_increasing(0.0)
+        raise not_increasing(period, "mean step apart from gaps")
     return SerialScan(
         ratio=ratio,
         period=period,
@@ -376,13 +376,13 @@ def time_tick(increments: np.ndarray) -> float:
     """
     positive = increments[increments > 0]
     if not len(positive):
-        raise not_increasing(float(np.median(increments)))
+        raise not_increasing(float(np.median(increments)), "median step")
     return float(np.median(positive))
 
 
-def not_increasing(median_step: float) -> SfmnetError:
+def not_increasing(step: float, what: str) -> SfmnetError:
     return SfmnetError(
-        f"the time column does not increase (its median step is {median_step:g} s): rows must be in time order; "
+        f"the time column does not increase (its {what} is {step:g} s): rows must be in time order; "
         "sort the file by time, or fit without static intervals: data.static_intervals=false"
     )
 

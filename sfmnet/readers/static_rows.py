@@ -107,7 +107,6 @@ def fitted_rows(
     return detection.mask
 
 
-
 def known_poses(known: np.ndarray) -> list[np.ndarray]:
     """The runs of consecutive rows in ``known`` (sorted row indices): one per known pose."""
     return np.split(known, np.nonzero(np.diff(known) > 1)[0] + 1)
@@ -116,7 +115,10 @@ def known_poses(known: np.ndarray) -> list[np.ndarray]:
 def unfitted_known_pose(detection: StaticIntervals, pose: np.ndarray, where: Callable[[int], str]) -> None:
     """Refuse a known pose none of whose rows is in an interval, saying why: held still too briefly (its longest
     still run, against what that run needed), or only within a window of motion."""
-    runs = [run for run in map(detection.still_run, pose[detection.still(pose)].tolist()) if run is not None]
+    runs: list[tuple[int, int, int]] = []
+    for row in pose[detection.still(pose)].tolist():
+        if not runs or row >= runs[-1][1]:  # each still run once, however long the pose
+            runs.append(detection.still_run(row))
     if runs:
         first, stop, fewest = max(runs, key=lambda run: run[1] - run[0])
         rows = stop - first
