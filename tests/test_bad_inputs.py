@@ -420,6 +420,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: continuous(t, poses=10, retime=lambda time: time + 0.2 * (torch.arange(len(time)) // 3)),
         r"583 of the time column's 1,749 steps are gaps \(over 5 ticks of 0.02 s\): its rate changes within the file",
     ),
+    "time spike": (
+        lambda t: calibrate(t, edit=set_cell(6, 0, "99.0")),
+        r"the time on line 6 of .*session.csv is 99 s after the next row's and the row before's: a corrupt stamp",
+    ),
     "time running backwards": (
         lambda t: continuous(t, poses=10, retime=lambda time: time.flip(0)),
         r"the time column does not increase \(its median step is -0.02 s\): rows must be in time order; sort the file",

@@ -332,7 +332,16 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
             if len(increments):
                 back = increments < -JITTER_PERIODS * tick
                 if back.any():
-                    row = base + int(np.argmax(back)) + 1
+                    i = int(np.argmax(back))
+                    jumped = i > 0 and increments[i - 1] > GAP_PERIODS * tick
+                    if jumped and joined_time[i - 1] <= joined_time[i + 1] + JITTER_PERIODS * tick:
+                        # The row before jumped ahead of both its neighbours: a spike, not a step back.
+                        raise SfmnetError(
+                            f"the time on {where(base + i)} is {joined_time[i] - joined_time[i + 1]:.3g} s after the next "
+                            "row's and the row before's: a corrupt stamp; repair or drop that row (or fit without static "
+                            "intervals: data.static_intervals=false)"
+                        )
+                    row = base + i + 1
                     raise SfmnetError(
                         f"the time on {where(row)} is {-increments[np.argmax(back)]:.3g} s before the row before's, "
                         f"more than {JITTER_PERIODS:g} ticks of {tick:.3g} s (jitter): rows must be in time order; repair "
