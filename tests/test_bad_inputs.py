@@ -392,7 +392,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "n-1 known loads without the mirror bit": (lambda t: calibrate(t, known_loads=2), r"only up to a mirror image: set data.mirror_hint="),
     "non-existent path": (lambda t: (lambda: train(compose_config(["experiment=calibrate_csv", f"data.path={t / 'nope.csv'}", "data.magnitude=9.81"]), t / "run")), r"nope.csv does not exist: check data.path"),
     "unreadable file": (unreadable_npy, r"cannot be read as .npy"),
-    "too few static intervals": (lambda t: continuous(t, poses=6), r"6 static intervals found but a 3-axis calibration with offsets needs at least 9"),
+    # 3 known poses give 9 equations less the frame's 3: with 2 more poses, 8 for the 9 unknowns.
+    "too few static intervals": (
+        lambda t: continuous(t, poses=5), r"5 static intervals found but a 3-axis calibration with offsets and 3 known poses needs at least 6",
+    ),
     "known load in motion": (lambda t: continuous(t, poses=10, known_in_motion=True), r"the known load on line 42 of .*stream.csv was recorded in motion"),
     "time cell empty": (
         lambda t: calibrate(t, edit=set_cell(6, 0, "")),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -116,9 +117,10 @@ def test_rows_logged_twice_are_not_counted_as_new_measurements(tmp_path: Path):
     write_stream_csv(twice, tmp_path / "twice.csv")
     metrics = calibrate(tmp_path / "twice.csv", tmp_path / "twice")
     warnings = json.loads((tmp_path / "twice" / "calibration.json").read_text())["warnings"]
-    assert any(w.startswith("50.0 % of the rows repeat the row before on every channel") for w in warnings), warnings
+    assert any(re.match(r"(49|50)\.\d % of the static rows repeat the row before on every channel", w) for w in warnings), warnings
     assert metrics["error_bars_trustworthy"] == 0.0
-    assert metrics["static/repeated_rows"] == len(recording.time)
+    # Each interval's rows come in pairs, but for one cut at an end.
+    assert abs(metrics["static/repeated_rows"] - metrics["static/rows_kept"] / 2) <= metrics["static/intervals"]
     write_stream_csv(recording, tmp_path / "once.csv")
     calibrate(tmp_path / "once.csv", tmp_path / "once")
     assert not any("repeat the row before" in w for w in json.loads((tmp_path / "once" / "calibration.json").read_text())["warnings"])

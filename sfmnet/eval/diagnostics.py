@@ -211,7 +211,7 @@ def distinct_poses(
 
     Rows held in one orientation repeat one equation ``|m| = F``: only distinct directions count
     (:func:`~sfmnet.linalg.directions.distinct_directions`, within ``POSE_NOISE_SIGMAS`` of a
-    direction's noise ``s |C|_F sqrt((n-1)/n) / F``), and a distinct known load gives ``n``, less the
+    direction's noise ``s |C|_F sqrt((n-1)/n) / F``; one along a known load adds nothing), and a distinct known load gives ``n``, less the
     ``n(n-1)/2`` that turn the frame into the known loads' (a rotation the poses alone leave free). Where
     they number fewer than ``n(n+1)/2 (+ n)`` (:func:`~sfmnet.linalg.factorisation.metric_unknowns`)
     the shape is not determined, however many rows repeat them; where they number exactly that, it is
@@ -232,6 +232,10 @@ def distinct_poses(
     angle = noise_std * float(model.calibration_matrix().norm()) * math.sqrt((n - 1) / n) / magnitude
     tolerance = min(POSE_NOISE_SIGMAS * angle, MAX_POSE_TOLERANCE)
     directions = loads[~known] / loads[~known].norm(dim=1, keepdim=True)
+    if known.any():
+        # An unknown pose along a known load repeats equations the known load already gives.
+        known_directions = loads[known] / loads[known].norm(dim=1, keepdim=True)
+        directions = directions[~(directions @ known_directions.T > math.cos(tolerance)).any(dim=1)]
     frame = n * (n - 1) // 2 if recording.distinct_known_loads else 0
     known_equations = n * recording.distinct_known_loads - frame
     # Counted one past what suffices: a calibration the poses only just determine is told from one they over-determine.

@@ -80,8 +80,8 @@ class StaticIntervals:
             ticks) starts a new stretch of the stream; empty without time.
         jitter_rows: rows whose time is not after the row before's, by at most ``JITTER_PERIODS``
             ticks (taken in file order).
-        repeated_rows: rows equal to the row before on every channel.
-        channel_repeats: ``p`` int, rows equal to the row before on each channel alone.
+        repeated_rows: kept rows equal to the kept row before on every channel (0 when ``independent``).
+        channel_repeats: ``p`` int, kept rows equal to the kept row before on each channel alone.
         serial_ratio: mean squared step between consecutive rows over twice the variance,
             averaged over channels (1: independent rows; near 0: a stream).
         independent: the rows are independent poses, not a stream: every row is kept.
@@ -209,15 +209,14 @@ def find_static_intervals(
     min_rows = max(1, math.ceil(min_duration / (period or 1.0))) if min_duration is not None else 2 * window_rows
     common = dict(
         threshold=threshold, window_rows=window_rows, min_rows=min_rows, period=period, serial_ratio=scan.ratio,
-        gap_rows=scan.gap_rows, jitter_rows=scan.jitter_rows, repeated_rows=scan.repeated_rows,
-        channel_repeats=scan.channel_repeats,
+        gap_rows=scan.gap_rows, jitter_rows=scan.jitter_rows,
         preview_rows=scan.preview_rows, preview_time=scan.preview_time, preview_readings=scan.preview_readings,
     )
     if scan.ratio >= INDEPENDENT_RATIO:
         rows = np.arange(f)
         return StaticIntervals(
             mask=np.ones(f, dtype=bool), intervals=np.stack([rows, rows + 1], axis=1), noise_floor=np.full(p, np.nan),
-            statistic=np.zeros(f, dtype=np.float32), independent=True,
+            statistic=np.zeros(f, dtype=np.float32), independent=True, repeated_rows=0, channel_repeats=np.zeros(p, dtype=np.int64),
             interval_times=None if time is None else np.stack([scan.time_at(rows), scan.time_at(rows)], axis=1),
             **common,
         )
@@ -249,11 +248,13 @@ def find_static_intervals(
     mask = np.zeros(f, dtype=bool)
     for first, stop in intervals:
         mask[first:stop] = True
+    repeated, channel_repeats = repeats_within(readings, intervals, chunk_rows)
     times = None
     if time is not None:
         times = np.stack([scan.time_at(intervals[:, 0]), scan.time_at(intervals[:, 1] - 1)], axis=1)
     return StaticIntervals(
         mask=mask, intervals=intervals, noise_floor=floor, statistic=statistic, independent=False,
+        repeated_rows=repeated, channel_repeats=channel_repeats,
         interval_times=times, **common,
     )
 
@@ -267,8 +268,6 @@ class SerialScan:
     tick: float | None
     gap_rows: np.ndarray
     jitter_rows: int
-    repeated_rows: int
-    channel_repeats: np.ndarray
     step: np.ndarray
     preview_rows: np.ndarray
     preview_time: np.ndarray | None
@@ -292,7 +291,6 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
     f, p = readings.shape
     shift = np.asarray(readings[0:1], dtype=np.float64)[0]
     total, squares, steps = np.zeros(p), np.zeros(p), np.zeros(p)
-    repeated, channel_repeats = 0, np.zeros(p, dtype=np.int64)
     smallest = np.full(p, np.inf)
     tick, gaps, jitter, previous, previous_time = None, [], 0, None, None
     step_sum, step_count = 0.0, 0  # of the steps apart from gaps: the period, a coarse clock's repeats included
@@ -306,9 +304,6 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
             raise SfmnetError(f"{where(first + int(np.argmax(bad)))} has a NaN or infinite reading: repair or drop that row")
         joined = block if previous is None else np.concatenate([previous, block])
         difference = np.abs(np.diff(joined, axis=0))
-        same = difference == 0
-        repeated += int(same.all(axis=1).sum())
-        channel_repeats += same.sum(axis=0)
         steps += (difference**2).sum(axis=0)
         nonzero = np.where(difference > 0, difference, np.inf)
         smallest = np.minimum(smallest, nonzero.min(axis=0, initial=np.inf))
@@ -365,8 +360,6 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
         ratio=ratio,
         period=period,
         tick=tick,
-        repeated_rows=repeated,
-        channel_repeats=channel_repeats,
         gap_rows=np.concatenate(gaps).astype(np.int64) if gaps else np.zeros(0, dtype=np.int64),
         jitter_rows=jitter,
         step=np.where(np.isfinite(smallest), smallest, 0.0),
@@ -447,6 +440,19 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
     chi2_quantile = dof * max(1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof)), 0.05) ** 3  # Wilson-Hilferty
     floor = np.sqrt(np.quantile(sampled, quantile, axis=0) * (dof + 1) / chi2_quantile)
     return np.maximum(floor, step / math.sqrt(12))
+
+
+def repeats_within(readings: Rows, intervals: np.ndarray, chunk_rows: int) -> tuple[int, np.ndarray]:
+    """Rows equal to the row before in the same interval: on every channel, and ``p`` counts on each channel alone."""
+    p = readings.shape[1]
+    repeated, channel_repeats = 0, np.zeros(p, dtype=np.int64)
+    for first, stop in intervals.tolist():
+        for start in range(first, stop - 1, chunk_rows):
+            block = np.asarray(readings[start : min(stop, start + chunk_rows + 1)])
+            same = np.diff(block, axis=0) == 0
+            repeated += int(same.all(axis=1).sum())
+            channel_repeats += same.sum(axis=0)
+    return repeated, channel_repeats
 
 
 def static_runs(quiet: np.ndarray, min_rows: int, starts: np.ndarray, window_rows: int) -> np.ndarray:

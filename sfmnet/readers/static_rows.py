@@ -97,11 +97,14 @@ def fitted_rows(
             f"the known load on {where(int(moving[0]))} was recorded in motion (no static interval within a window): "
             "fill the load columns only while the mass is held still, or tune data.static"
         )
-    needed = metric_unknowns(axes, True)
+    # A known pose's interval gives n equations, not one, less the n(n-1)/2 the frame takes (as distinct_poses counts).
+    poses = len([pose for pose in known_poses(known) if len(pose)])
+    needed = metric_unknowns(axes, True) - ((axes - 1) * poses - axes * (axes - 1) // 2 if poses else 0)
     if check_count and not detection.independent and detection.count < needed:
+        with_known = f" and {poses} known poses" if poses else ""
         raise SfmnetError(
-            f"{detection.count} static intervals found but a {axes}-axis calibration with offsets needs at least {needed} "
-            "(the unknowns of its metric constraint): record more poses held still, tune data.static "
+            f"{detection.count} static intervals found but a {axes}-axis calibration with offsets{with_known} needs at "
+            f"least {needed} (the unknowns of its metric constraint): record more poses held still, tune data.static "
             "(window, threshold), or fit every row with data.static_intervals=false"
         )
     return detection.mask

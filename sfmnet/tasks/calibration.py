@@ -66,7 +66,7 @@ class CalibrationTask(Task):
             uncertainty = model.uncertainty(recording.without(outlying), loads[~outlying])
         detection = data.static_intervals
         repeats = None if detection is None else repeated_rows_warning(
-            detection.repeated_rows, detection.channel_repeats, len(detection.mask) - 1
+            detection.repeated_rows, detection.channel_repeats, detection.rows_kept - detection.count
         )
         warnings = [*data.warnings, *model.fit_warnings, *warnings, *([repeats] if repeats else [])]
         # The error bars assume the model, independent rows and a fit that worked; a failed check or fit says they
