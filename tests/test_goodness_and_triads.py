@@ -320,6 +320,29 @@ def test_too_few_poses_for_the_unknowns_are_flagged_however_many_rows_repeat_the
         assert not goodness.trustworthy
 
 
+@pytest.mark.parametrize("along_known", [False, True])
+def test_a_pose_along_a_known_load_adds_no_equation(along_known: bool):
+    """3 known loads (9 equations, 3 of them the frame's) and 6 held poses give 12 equations for 9 unknowns; with 3 of
+    the poses along the known loads only 9, exactly the unknowns (a hostile tester's session: trusted at 2.1x its bars)."""
+    rng = np.random.default_rng(4)
+    shape = rng.normal(size=(3, 6))
+    directions = rng.normal(size=(6, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    if along_known:
+        directions[3:] = np.eye(3)
+    held = np.repeat(np.concatenate([np.eye(3), directions]), 150, axis=0)
+    clean = 9.81 * held @ shape + rng.normal(size=6)
+    readings = clean + 0.01 * clean.std() * rng.normal(size=clean.shape)
+    loads = torch.full((len(held), 3), math.nan, dtype=torch.float64)
+    loads[:450] = torch.from_numpy(9.81 * held[:450])
+    recording = CalibrationRecording(
+        readings=torch.from_numpy(readings), loads=loads, magnitude=9.81, groups=torch.arange(len(held)) // 150
+    )
+    _, warnings, goodness, _ = diagnosed(recording)
+    assert goodness.metrics["goodness/pose_equations"] == (9 if along_known else 10)
+    assert any("only just determine the 9 unknowns" in w for w in warnings) == along_known
+
+
 @pytest.mark.parametrize(
     "law, noise, samples, seed, flagged",
     [("cone", 0.3, 40, 2, True), ("hemisphere", 0.5, 150, 2, True), ("uniform", 0.15, 150, 1, False)],
