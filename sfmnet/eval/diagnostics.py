@@ -9,7 +9,7 @@ import torch
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.eval.goodness_of_fit import GoodnessOfFit, PoseEquations, goodness_of_fit, untied_extra_poses
 from sfmnet.linalg.directions import distinct_directions, median_angle_from_poses
-from sfmnet.linalg.factorisation import metric_unknowns
+from sfmnet.linalg.factorisation import known_load_equations, metric_unknowns
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
@@ -211,8 +211,8 @@ def distinct_poses(
 
     Rows held in one orientation repeat one equation ``|m| = F``: only distinct directions count
     (:func:`~sfmnet.linalg.directions.distinct_directions`, within ``POSE_NOISE_SIGMAS`` of a
-    direction's noise ``s |C|_F sqrt((n-1)/n) / F``; one along a known load adds nothing), and a distinct known load gives ``n``, less the
-    ``n(n-1)/2`` that turn the frame into the known loads' (a rotation the poses alone leave free). Where
+    direction's noise ``s |C|_F sqrt((n-1)/n) / F``; one along a known load adds nothing), and the known
+    loads give :func:`~sfmnet.linalg.factorisation.known_load_equations`. Where
     they number fewer than ``n(n+1)/2 (+ n)`` (:func:`~sfmnet.linalg.factorisation.metric_unknowns`)
     the shape is not determined, however many rows repeat them; where they number exactly that, it is
     determined with nothing left to test it. Fitted row by row (untied), the error bars
@@ -236,8 +236,7 @@ def distinct_poses(
         # An unknown pose along a known load repeats equations the known load already gives.
         known_directions = loads[known] / loads[known].norm(dim=1, keepdim=True)
         directions = directions[~(directions @ known_directions.T > math.cos(tolerance)).any(dim=1)]
-    frame = n * (n - 1) // 2 if recording.distinct_known_loads else 0
-    known_equations = n * recording.distinct_known_loads - frame
+    known_equations = known_load_equations(n, recording.distinct_known_loads)
     # Counted one past what suffices: a calibration the poses only just determine is told from one they over-determine.
     leaders = distinct_directions(directions, tolerance, max(enough - known_equations, 0) + 1)
     equations = len(leaders) + known_equations

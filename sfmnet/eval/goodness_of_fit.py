@@ -98,7 +98,8 @@ MAX_HELD_POSE_SCATTER = 1.5
 
 class PoseEquations(NamedTuple):
     """The equations ``|m| = F`` the rows' distinct poses give, with the known loads' net of the frame they fix
-    (counted one past ``needed``, untied past ``untied_needed``), the shape's unknowns (``needed``), whether the fit tied each group's rows to one direction
+    (counted one past ``needed``, untied past ``untied_needed``), the shape's unknowns (``needed``), whether the fit
+    tied each group's rows to one direction
     (then a group is one pose), the poses untied error bars need (``needed +`` :func:`untied_extra_poses`) and, where
     fewer poses were found than counted up to, the rows' median angle from their pose's mean over one direction's RMS
     noise (NaN elsewhere)."""
@@ -442,19 +443,20 @@ def goodness_of_fit(
         metrics["goodness/pose_equations"] = float(equations)
         if math.isfinite(scatter):
             metrics["goodness/pose_scatter_ratio"] = scatter
+        offsets = needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2
+        unknowns = f"the {needed} unknowns of the shape{' and offsets' if offsets else ''}"
         if equations < needed:
             # Tied, a group's rows were given one direction: wrong groups (poses merged) look like few poses.
             check = " (the rows of one static interval or data.group_column label share one direction: check them)"
             warnings.append(
-                f"the rows hold only {equations} distinct orientations (poses){check if tied else ''} for the {needed} "
-                f"unknowns of the shape{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: "
+                f"the rows hold only {equations} distinct orientations (poses){check if tied else ''} for {unknowns}: "
                 f"the calibration is not determined by them, however many rows repeat them; record at least {needed} poses "
                 "(dozens give a good calibration)"
             )
         elif tied and equations == needed:
             warnings.append(
                 f"the rows' {equations} distinct orientations (poses, a known load counting for its equations) only just "
-                f"determine the {needed} unknowns of the shape{' and offsets' if needed > matrix.shape[0] * (matrix.shape[0] + 1) // 2 else ''}: "
+                f"determine {unknowns}: "
                 "the fit passes through every pose, so no check can test it and another calibration may fit them as "
                 f"exactly; record at least {needed + 1} poses (dozens give a good calibration)"
             )

@@ -109,6 +109,12 @@ def metric_unknowns(rank: int, offsets: bool) -> int:
     return rank * (rank + 1) // 2 + (rank if offsets else 0)
 
 
+def known_load_equations(rank: int, known_loads: int) -> int:
+    """Equations of the metric constraint's unknowns that ``known_loads`` distinct known loads give: ``n`` each, less
+    the ``n(n-1)/2`` that turn the frame into theirs (a rotation the unknown poses alone leave free)."""
+    return rank * known_loads - rank * (rank - 1) // 2 if known_loads else 0
+
+
 def metric_gram(motion: torch.Tensor, magnitude: float) -> torch.Tensor:
     """Solve the metric constraint ``m^_j Q m^_j^T = F^2`` for ``Q = B B^T`` by least squares (eq. 11).
 

@@ -135,7 +135,7 @@ class StaticIntervals:
         fewest rows such a run needs to be an interval (:func:`shortest_interval`); None if ``row`` is in motion."""
         if self.independent or not self.still(np.array([row]))[0]:
             return None
-        starts = np.concatenate([[0], self.gap_rows])
+        starts = stretch_starts(self.gap_rows)
         k = int(np.searchsorted(starts, row, side="right")) - 1
         low, high = int(starts[k]), int(starts[k + 1]) if k + 1 < len(starts) else len(self.mask)
         moving = np.nonzero(self.statistic[low:high] >= self.threshold)[0] + low
@@ -220,7 +220,7 @@ def find_static_intervals(
             interval_times=None if time is None else np.stack([scan.time_at(rows), scan.time_at(rows)], axis=1),
             **common,
         )
-    starts = np.concatenate([[0], scan.gap_rows]).astype(np.int64)
+    starts = stretch_starts(scan.gap_rows)
     if period is not None and window < 2 * period:
         raise SfmnetError(
             f"the static-interval window of {window:g} s spans under two rows of this recording ({period:.3g} s a row): "
@@ -440,6 +440,11 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
     chi2_quantile = dof * max(1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof)), 0.05) ** 3  # Wilson-Hilferty
     floor = np.sqrt(np.quantile(sampled, quantile, axis=0) * (dof + 1) / chi2_quantile)
     return np.maximum(floor, step / math.sqrt(12))
+
+
+def stretch_starts(gap_rows: np.ndarray) -> np.ndarray:
+    """The first row of each stretch of the stream between gaps: 0, then ``gap_rows`` (int64)."""
+    return np.concatenate([[0], gap_rows]).astype(np.int64)
 
 
 def repeats_within(readings: Rows, intervals: np.ndarray, chunk_rows: int) -> tuple[int, np.ndarray]:

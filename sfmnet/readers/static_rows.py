@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sfmnet.errors import SfmnetError
-from sfmnet.linalg.factorisation import metric_unknowns
+from sfmnet.linalg.factorisation import known_load_equations, metric_unknowns
 from sfmnet.preprocessing.static_intervals import (
     DEFAULT_NOISE_QUANTILE,
     DEFAULT_THRESHOLD,
@@ -97,9 +97,9 @@ def fitted_rows(
             f"the known load on {where(int(moving[0]))} was recorded in motion (no static interval within a window): "
             "fill the load columns only while the mass is held still, or tune data.static"
         )
-    # A known pose's interval gives n equations, not one, less the n(n-1)/2 the frame takes (as distinct_poses counts).
+    # A known pose's interval counts once among the intervals, but its known load gives its own equations.
     poses = len([pose for pose in known_poses(known) if len(pose)])
-    needed = metric_unknowns(axes, True) - ((axes - 1) * poses - axes * (axes - 1) // 2 if poses else 0)
+    needed = metric_unknowns(axes, True) - (known_load_equations(axes, poses) - poses)
     if check_count and not detection.independent and detection.count < needed:
         with_known = f" and {poses} known poses" if poses else ""
         raise SfmnetError(

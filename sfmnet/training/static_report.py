@@ -17,8 +17,8 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
     """Write ``static_intervals.csv`` and ``figures/static_intervals.png`` (also to ``logger``'s TensorBoard).
 
     Returns:
-        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, ``static/time_gaps``, ``static/repeated_rows``, and the console
-        line (empty and None without detection).
+        the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, ``static/time_gaps`` and
+        ``static/repeated_rows``, and the console line (empty and None without detection).
     """
     detection = data.static_intervals
     if detection is None:
