@@ -25,6 +25,12 @@ those bars alone (what a user is told to believe). Trials run in ``--processes``
 
     python bench/crb_ratio.py --laws --trials 50 --processes 2 [--learnt-law harmonic] [--only 3:yes:band:20 ...]
 
+``--record FILE`` appends each finished row's sums to ``FILE`` (JSON lines) with a digest of the code that measured
+it (``sfmnet/``, ``conf/`` and this file); a row already there for the same code and options is printed from it, not
+rerun. So the 50-session table (hours) can be built over several runs, each taking some rows with ``--only``:
+
+    python bench/crb_ratio.py --laws --trials 50 --record runs/bench/laws50.jsonl --only 2:no:band:2 ...
+
 ``--samples`` runs sessions of that many rows instead: a bias that does not shrink with rows (README, "Beyond the
 table's 96-200 rows") hides under the variance of the table's small sessions.
 
@@ -52,9 +58,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import inspect
+import json
 import math
 import warnings
+from pathlib import Path
 
 import lightning as L
 import torch
@@ -316,12 +325,41 @@ def law_trial(args: tuple) -> tuple[float, ...]:
     return closed_form, *errors, auto_error, bound, float(within), float(bars.numel()), trusted, trusted * float(within), trusted * float(bars.numel())
 
 
+def code_digest() -> str:
+    """A digest of the code a row's figures depend on: every file under ``sfmnet/`` and ``conf/``, and this one."""
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.blake2b(digest_size=8)
+    for path in sorted([*(root / "sfmnet").rglob("*.py"), *(root / "conf").rglob("*.yaml"), Path(__file__).resolve()]):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def recorded_rows(record: Path | None, key: dict) -> dict[str, list[float]]:
+    """The rows ``record`` holds measured under ``key`` (the code's digest and the options): row name to its sums."""
+    if record is None or not record.exists():
+        return {}
+    rows = {}
+    for line in record.read_text().splitlines():
+        entry = json.loads(line)
+        if entry["key"] == key:
+            rows[entry["row"]] = entry["sums"]
+    return rows
+
+
 def law_table(
     trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool, true_law: bool,
-    samples: int | None = None, p_equals_n: bool = False,
+    samples: int | None = None, p_equals_n: bool = False, record: Path | None = None,
 ) -> None:
-    """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``)."""
+    """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``;
+    ``record``: see ``--record``)."""
     import multiprocessing
+
+    key = {
+        "code": code_digest(), "trials": trials, "learnt_law": learnt_law, "tie": tie, "true_law": true_law,
+        "samples": samples, "p_equals_n": p_equals_n, "optimizer": OmegaConf.to_container(optimizer_cfg),
+    }
+    done = recorded_rows(record, key)
 
     columns = ["closed form", "alternation", "marginal", *(["marginal, true law"] if true_law else []), "auto"]
     print("| n | offsets | law | SNR | " + " | ".join(f"{c} / CRB" for c in columns)
@@ -332,14 +370,22 @@ def law_table(
             for offsets in (False, True):
                 for law in LAWS:
                     for snr in snrs:
-                        if only and f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}" not in only:
+                        row = f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}"
+                        if only and row not in only:
                             continue
-                        jobs = [
-                            (n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n)
-                            for seed in range(trials)
-                        ]
-                        results = torch.tensor(pool.map(law_trial, jobs))
-                        *errors, bound, within, entries, trusted, trusted_within, trusted_entries = results.sum(dim=0)
+                        if row in done:
+                            sums = torch.tensor(done[row])
+                        else:
+                            jobs = [
+                                (n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n)
+                                for seed in range(trials)
+                            ]
+                            sums = torch.tensor(pool.map(law_trial, jobs)).sum(dim=0)
+                            if record is not None:
+                                record.parent.mkdir(parents=True, exist_ok=True)
+                                with record.open("a") as file:
+                                    file.write(json.dumps({"key": key, "row": row, "sums": sums.tolist()}) + "\n")
+                        *errors, bound, within, entries, trusted, trusted_within, trusted_entries = sums
                         # The true law's column has no figure on poses; a NaN elsewhere is a failed fit and shows as one.
                         cells = [f"{float((e / bound).sqrt()):.2f}" for e in errors]
                         if true_law and law == "poses":
@@ -369,6 +415,7 @@ def main() -> None:
     parser.add_argument("--only", nargs="+", default=[], help="--laws rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
     parser.add_argument("--samples", type=int, default=None, help="--laws: rows per session instead of 96 (n = 2) and 200 (n = 3)")
     parser.add_argument("--p-equals-n", action="store_true", help="--laws: as many channels as axes (see above)")
+    parser.add_argument("--record", type=Path, default=None, help="--laws: JSON-lines file of finished rows (see above)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     import logging
@@ -379,7 +426,7 @@ def main() -> None:
     if args.laws:
         law_table(
             args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied, args.true_law,
-            args.samples, args.p_equals_n,
+            args.samples, args.p_equals_n, args.record,
         )
         return
     if args.law_bounds:
