@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from sfmnet.calibration import Calibration
+from sfmnet.eval.goodness_of_fit import POSE_MISFIT_Z
 from sfmnet.simulators.simulated_stream import ContinuousRecording, simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
 from sfmnet.preprocessing.static_intervals import find_static_intervals
@@ -153,6 +154,38 @@ def test_calibration_from_a_stream_matches_the_static_rows_alone(tmp_path: Path)
     table = (tmp_path / "detected" / "static_intervals.csv").read_text().splitlines()
     assert table[0] == "interval,first_row,last_row,start_time,end_time,rows" and len(table) == 1 + len(recording.intervals)
     assert (tmp_path / "detected" / "figures" / "static_intervals.png").stat().st_size > 10_000
+
+
+def drifting(drift: float) -> ContinuousRecording:
+    """:func:`stream` of 30 poses whose readings drift linearly in time, by ``drift`` of each channel's spread."""
+    recording, _ = stream(poses=30)
+    spread = recording.readings.std(dim=0)
+    direction = torch.linspace(-1, 1, recording.readings.shape[1], dtype=recording.readings.dtype)
+    ramp = recording.time[:, None] / recording.time[-1]
+    return dataclasses.replace(recording, readings=recording.readings + drift * spread * direction * ramp)
+
+
+@pytest.mark.parametrize("drift", [0.0, 0.001])
+def test_a_streamed_calibration_tests_its_pose_means_as_in_memory(tmp_path: Path, drift: float):
+    """A drift of 0.1 % of each channel's spread over the recording: every pose's mean misses the model by a little,
+    more than chance allows over 30 poses. The streamed fit sees the rows only as sums, but its sample of rows is grouped
+    by the static intervals too, so it runs the same checks (before, it ran none and trusted such a stream): on every
+    row (the default sample), the in-memory run's figures; on every 6th, its own, the fit's degrees of freedom scaled."""
+    write_stream_csv(drifting(drift), tmp_path / "stream.csv")
+    runs = {
+        "memory": calibrate(tmp_path / "stream.csv", tmp_path / "memory"),
+        "streamed": calibrate(tmp_path / "stream.csv", tmp_path / "streamed", experiment="calibrate_stream"),
+        "sampled": calibrate(tmp_path / "stream.csv", tmp_path / "sampled", "model.sample_rows=1000", experiment="calibrate_stream"),
+    }
+    assert runs["streamed"]["goodness/pose_misfit_z"] == pytest.approx(runs["memory"]["goodness/pose_misfit_z"], abs=0.05)
+    for name, metrics in runs.items():
+        calibration = json.loads((tmp_path / name / "calibration.json").read_text())
+        flagged = any("more than chance allows over 30 poses" in warning for warning in calibration["warnings"])
+        if drift:
+            assert metrics["goodness/pose_misfit_z"] > POSE_MISFIT_Z and flagged, (name, metrics["goodness/pose_misfit_z"])
+            assert not calibration["error_bars_trustworthy"], name
+        else:
+            assert abs(metrics["goodness/pose_misfit_z"]) < POSE_MISFIT_Z and calibration["error_bars_trustworthy"], name
 
 
 def test_streamed_keeps_the_same_rows_as_in_memory(tmp_path: Path):

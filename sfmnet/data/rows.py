@@ -139,6 +139,8 @@ class StreamedRecording(RowData):
         mirror_hint: which side of the mirror the row ``hint_reading`` lies on (``sample`` unused), or None.
         hint_reading: ``p`` raw readings of the mirror hint's row.
         keep: ``f`` bool, the rows fitted (the static intervals of a continuous recording); None: all.
+        intervals: ``k x 2`` int64, those static intervals' half-open row ranges, in order (the poses the rows were
+            held in, for the goodness of fit); None without them.
     """
 
     magnitude: float = math.nan
@@ -146,6 +148,7 @@ class StreamedRecording(RowData):
     mirror_hint: MirrorHint | None = None
     hint_reading: torch.Tensor | None = None
     keep: np.ndarray | None = None
+    intervals: np.ndarray | None = None
     axes: list[str] = field(default_factory=list)
 
     recording = "streamed_rotation"

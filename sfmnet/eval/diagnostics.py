@@ -98,12 +98,14 @@ def calibration_diagnostics(
     return metrics, [*warnings, *goodness.warnings], goodness
 
 
-def global_parameters(model: LinearCalibrator, recording: CalibrationRecording, direction_dims: int) -> int:
+def global_parameters(model: LinearCalibrator, recording: CalibrationRecording, direction_dims: int) -> float:
     """The fit's parameters shared by every row: the shape's ``n p`` and the offsets' ``p`` (when estimated), less the
-    ``d (d - 1) / 2`` of the directions' rotation where no known load fixes the frame (a gauge, not a parameter)."""
+    ``d (d - 1) / 2`` of the directions' rotation where no known load fixes the frame (a gauge, not a parameter);
+    over the weight each unknown row of ``recording`` stands for (a streamed fit's sample of every ``w``-th row: the
+    fit, to every row, takes up only ``1 / w`` of the sample's residual degrees of freedom)."""
     n, p = recording.rank, recording.readings.shape[1]
     gauge = 0 if bool(recording.known.any()) else direction_dims * (direction_dims - 1) // 2
-    return n * p + (p if model.estimate_offset else 0) - gauge
+    return (n * p + (p if model.estimate_offset else 0) - gauge) / model.unknown_row_weight(recording)
 
 
 def load_residuals(residuals: torch.Tensor, matrix: torch.Tensor) -> dict[str, float]:

@@ -179,7 +179,7 @@ def pose_misfit_ratio(poses: PoseMeans, noise: float) -> float:
     return math.sqrt(float((poses.squares / poses.dof).mean())) / noise
 
 
-def pose_misfit_z(poses: PoseMeans, noise: float, parameters: int) -> float:
+def pose_misfit_z(poses: PoseMeans, noise: float, parameters: float) -> float:
     """How many standard deviations the pose means' chi-square lies above its expectation.
 
     ``T = sum_k n_k |rbar_k|^2 / sigma^2`` over the groups of two or more rows is ``chi2(nu)`` if the model fits
@@ -324,7 +324,7 @@ def goodness_of_fit(
     matrix_std: torch.Tensor | None = None,
     refinement_disagreement: float | None = None,
     learnt_law: bool = False,
-    parameters: int = 0,
+    parameters: float = 0,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 

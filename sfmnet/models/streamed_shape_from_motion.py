@@ -30,6 +30,7 @@ from sfmnet.linalg.moments import (
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty, residual_noise_variance
 from sfmnet.models.contracts import FitMode
 from sfmnet.models.linear_calibrator import LinearCalibrator, UnknownRows
+from sfmnet.preprocessing.static_intervals import intervals_of
 from sfmnet.models.shape_from_motion import (
     ALTERNATION_BIASED_BELOW_SNR,
     RUNAWAY_GROWTH,
@@ -152,7 +153,8 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.moments = Moments.empty(self.data.shift)
             self.known_rows: list[torch.Tensor] = []
             self.first_partial_row = self.data.rows
-            self.sample = torch.zeros(math.ceil(self.data.rows / self.stride), p + n, dtype=torch.float64)
+            # Readings, loads and the static interval (plus one; 0: none) of every stride-th row.
+            self.sample = torch.zeros(math.ceil(self.data.rows / self.stride), p + n + 1, dtype=torch.float64)
         elif self.passes == 1:
             m = metric_unknowns(n, self.estimate_offset)
             self.metric_normal = torch.zeros(m, m, dtype=torch.float64)
@@ -192,7 +194,16 @@ class StreamedShapeFromMotion(LinearCalibrator):
         if known.any():
             self.known_rows.append(torch.cat([rows[known, None].double(), block.readings[known], block.loads[known]], 1))
         sampled = rows % self.stride == 0
-        self.sample[rows[sampled] // self.stride] = torch.cat([block.readings[sampled], block.loads[sampled]], dim=1)
+        interval = 1 + self.interval_of(rows[sampled])
+        self.sample[rows[sampled] // self.stride] = torch.cat(
+            [block.readings[sampled], block.loads[sampled], interval[:, None].double()], dim=1
+        )
+
+    def interval_of(self, rows: torch.Tensor) -> torch.Tensor:
+        """Each of ``rows`` (file indices)'s static interval, ``r`` long; -1 outside them or without them."""
+        if self.data.intervals is None:
+            return torch.full((len(rows),), -1, dtype=torch.long)
+        return torch.from_numpy(intervals_of(rows.numpy(), self.data.intervals))
 
     def affine_motion(self, shifted: torch.Tensor) -> torch.Tensor:
         """``m^ = (z - c) V Sigma^(-1/2)`` (eq. 8), ``b x n``, for readings minus the shift."""
@@ -407,18 +418,23 @@ class StreamedShapeFromMotion(LinearCalibrator):
         ]
 
     def report_recording(self, recording: StreamedRecording) -> CalibrationRecording:
-        """The sampled rows (every ``stride``-th) and the known-load rows, in memory, for error bars and figures."""
+        """The sampled rows (every ``stride``-th) and the known-load rows, in memory, for error bars, figures and the
+        goodness of fit; grouped by their static intervals (the poses they were held in), where the stream has them."""
         if self.passes < 2:
             raise SfmnetError(
                 f"a streamed calibration needs two passes for its closed form (moments, then the metric constraint) "
                 f"but ran {self.passes}: set trainer.max_epochs to 2 or more"
             )
-        p = len(self.data.channels)
-        sampled = self.sample[torch.isnan(self.sample[:, p:]).any(dim=1)]
+        p, n = len(self.data.channels), self.rank
+        sampled = self.sample[torch.isnan(self.sample[:, p : p + n]).any(dim=1)]
+        groups = None
+        if self.data.intervals is not None:
+            groups = torch.cat([sampled[:, p + n].long() - 1, self.interval_of(self.known[:, 0].long())])
         return CalibrationRecording(
             readings=torch.cat([sampled[:, :p] + self.data.shift, self.known_readings()]),
-            loads=torch.cat([sampled[:, p:], self.known_loads()]),
+            loads=torch.cat([sampled[:, p : p + n], self.known_loads()]),
             magnitude=self.data.magnitude,
+            groups=groups,
         )
 
     def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:

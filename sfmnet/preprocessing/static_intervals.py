@@ -61,6 +61,14 @@ class Rows(Protocol):
     def __getitem__(self, rows: slice) -> np.ndarray: ...
 
 
+def intervals_of(rows: np.ndarray, intervals: np.ndarray) -> np.ndarray:
+    """Each of ``rows`` (``r`` int, row indices)'s interval in ``intervals`` (``k x 2``, half-open, in order): ``r``
+    int64, -1 outside every interval. ``O(k)`` memory, so a stream's rows can be looked up block by block."""
+    slot = np.searchsorted(intervals[:, 0], rows, side="right") - 1
+    inside = (slot >= 0) & (rows < intervals[np.maximum(slot, 0), 1]) if len(intervals) else np.zeros(len(rows), bool)
+    return np.where(inside, slot, -1).astype(np.int64)
+
+
 @dataclass(frozen=True)
 class StaticIntervals:
     """Where a recording was static.
@@ -121,10 +129,7 @@ class StaticIntervals:
 
     def interval_of_rows(self) -> np.ndarray:
         """``f`` int64: each row's interval index, -1 outside every interval."""
-        index = np.full(len(self.mask), -1, dtype=np.int64)
-        for k, (first, stop) in enumerate(self.intervals):
-            index[first:stop] = k
-        return index
+        return intervals_of(np.arange(len(self.mask)), self.intervals)
 
     def still(self, rows: np.ndarray) -> np.ndarray:
         """Bool per row of ``rows``: below the threshold (held still, whether or not in an interval)."""

@@ -121,7 +121,8 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         return sum(recording.rows for recording in self.data.recordings.values())
 
     def find_static_rows(self, recording: StreamedRecording, names: list[str]) -> StaticIntervals:
-        """Detect the static intervals chunk by chunk and set ``recording.keep`` (unless the rows are independent poses)."""
+        """Detect the static intervals chunk by chunk and set ``recording.keep`` and ``recording.intervals`` (unless the rows
+        are independent poses)."""
         recording.refuse_bad_rows()
         layout = recording.layout
         time = None
@@ -134,7 +135,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             known.append(start + np.nonzero(np.isfinite(loads[start : start + CHUNK_ROWS]).all(axis=1))[0])
         keep = fitted_rows(detection, np.concatenate(known) if known else np.zeros(0, dtype=int), recording.rank, self.row_place)
         if not detection.independent:
-            recording.keep = keep
+            recording.keep, recording.intervals = keep, detection.intervals
         return detection
 
     def read_mirror_hint(self, recording: StreamedRecording) -> None:
