@@ -16,7 +16,7 @@ from sfmnet.calibration import Calibration
 from sfmnet.eval.goodness_of_fit import POSE_MISFIT_Z
 from sfmnet.simulators.simulated_stream import ContinuousRecording, simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
-from sfmnet.preprocessing.static_intervals import find_static_intervals
+from sfmnet.preprocessing.static_intervals import find_static_intervals, intervals_of
 from sfmnet.training.run import train
 from sfmnet.training.static_report import describe
 from tests.conftest import compose_config, write_session
@@ -154,6 +154,13 @@ def test_calibration_from_a_stream_matches_the_static_rows_alone(tmp_path: Path)
     table = (tmp_path / "detected" / "static_intervals.csv").read_text().splitlines()
     assert table[0] == "interval,first_row,last_row,start_time,end_time,rows" and len(table) == 1 + len(recording.intervals)
     assert (tmp_path / "detected" / "figures" / "static_intervals.png").stat().st_size > 10_000
+
+
+def test_each_row_is_found_in_its_interval_or_none():
+    """Half-open ranges, back to back or apart; rows before, between and after them are in none."""
+    intervals = np.array([[2, 5], [5, 7], [10, 12]])
+    assert intervals_of(np.arange(14), intervals).tolist() == [-1, -1, 0, 0, 0, 1, 1, -1, -1, -1, 2, 2, -1, -1]
+    assert intervals_of(np.arange(3), np.zeros((0, 2), dtype=np.int64)).tolist() == [-1, -1, -1]
 
 
 def drifting(drift: float) -> ContinuousRecording:

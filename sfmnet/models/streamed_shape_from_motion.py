@@ -30,7 +30,6 @@ from sfmnet.linalg.moments import (
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty, residual_noise_variance
 from sfmnet.models.contracts import FitMode
 from sfmnet.models.linear_calibrator import LinearCalibrator, UnknownRows
-from sfmnet.preprocessing.static_intervals import intervals_of
 from sfmnet.models.shape_from_motion import (
     ALTERNATION_BIASED_BELOW_SNR,
     RUNAWAY_GROWTH,
@@ -38,6 +37,7 @@ from sfmnet.models.shape_from_motion import (
     runaway_warning,
     shape_growth,
 )
+from sfmnet.preprocessing.static_intervals import intervals_of
 
 REFINEMENTS = ("alternation", "closed_form")
 # Rounds the alternation mixes: one per pass, so a longer memory than in memory pays.
