@@ -506,6 +506,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         r"line 9 of .*session.csv has a NaN, empty or infinite channel cell",
     ),
     "stream: missing column": (lambda t: stream(t, "data.load_columns=[fx,fy,fzz]"), r"load column 'fzz' is not in .*session.csv"),
+    # A hostile tester's: the stream fitted it (a zero column of C) and called the channel a timestamp that only rises.
+    "stream: constant channel": (lambda t: stream(t, edit=flatten_channel(4, "1.234")), r"channel s3 is constant on every row fitted"),
     "stream: wrong magnitude": (
         lambda t: stream(t, "data.magnitude=12.0"), r"known load on line \d+ of .*session.csv has magnitude 9.81 but data.magnitude is 12"
     ),

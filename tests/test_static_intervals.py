@@ -175,16 +175,24 @@ def drifting(drift: float) -> ContinuousRecording:
 @pytest.mark.parametrize("drift", [0.0, 0.001])
 def test_a_streamed_calibration_tests_its_pose_means_as_in_memory(tmp_path: Path, drift: float):
     """A drift of 0.1 % of each channel's spread over the recording: every pose's mean misses the model by a little,
-    more than chance allows over 30 poses. The streamed fit sees the rows only as sums, but its sample of rows is grouped
-    by the static intervals too, so it runs the same checks (before, it ran none and trusted such a stream): on every
-    row (the default sample), the in-memory run's figures; on every 6th, its own, the fit's degrees of freedom scaled."""
+    more than chance allows over 30 poses. The streamed fit sees the rows only as sums, and it sums each static
+    interval's rows too, so it runs the same checks on the same figures (before, it ran none and trusted such a
+    stream), whether its sample of rows for the error bars is every row (the default here) or every 6th. The closed
+    form alone (two passes, no residual pass to sum) tests the pose means of its sample, the fit's degrees of freedom
+    counted for it: less power (z 4.5-7.5 here), still flagged."""
     write_stream_csv(drifting(drift), tmp_path / "stream.csv")
+    stream_csv, streamed = tmp_path / "stream.csv", {"experiment": "calibrate_stream"}
     runs = {
-        "memory": calibrate(tmp_path / "stream.csv", tmp_path / "memory"),
-        "streamed": calibrate(tmp_path / "stream.csv", tmp_path / "streamed", experiment="calibrate_stream"),
-        "sampled": calibrate(tmp_path / "stream.csv", tmp_path / "sampled", "model.sample_rows=1000", experiment="calibrate_stream"),
+        "memory": calibrate(stream_csv, tmp_path / "memory"),
+        "streamed": calibrate(stream_csv, tmp_path / "streamed", **streamed),
+        "sampled": calibrate(stream_csv, tmp_path / "sampled", "model.sample_rows=1000", **streamed),
+        "closed_form": calibrate(
+            stream_csv, tmp_path / "closed_form", "model.sample_rows=1000", "model.refinement=closed_form", **streamed
+        ),
     }
-    assert runs["streamed"]["goodness/pose_misfit_z"] == pytest.approx(runs["memory"]["goodness/pose_misfit_z"], abs=0.05)
+    for name in ("streamed", "sampled"):
+        assert runs[name]["goodness/pose_misfit_z"] == pytest.approx(runs["memory"]["goodness/pose_misfit_z"], abs=0.05)
+        assert runs[name]["goodness/noise_within_groups"] == pytest.approx(runs["memory"]["goodness/noise_within_groups"], rel=1e-6)
     for name, metrics in runs.items():
         calibration = json.loads((tmp_path / name / "calibration.json").read_text())
         flagged = any("more than chance allows over 30 poses" in warning for warning in calibration["warnings"])

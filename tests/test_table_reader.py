@@ -190,3 +190,11 @@ def test_a_whitespace_table_reads_past_blank_and_comment_lines_and_names_their_l
     (tmp_path / "short.txt").write_text(text.replace("4 5 6", "4 5"))
     with pytest.raises(SfmnetError, match=r"short.txt line 5 has 2 values but the table has 3 columns"):
         read_table(tmp_path / "short.txt")
+
+
+def test_a_constant_channel_is_not_called_a_timestamp():
+    """A stuck channel neither rises nor falls (a hostile tester's stream was told its stuck gauge looked like a
+    timestamp); it is refused as constant on its own."""
+    readings = np.stack([np.full(50, 1.234), np.arange(50.0), np.sin(np.arange(50.0))], axis=1)
+    warnings = monotonic_channel_warnings(readings, ["stuck", "clock", "gauge"], "the file's rows")
+    assert len(warnings) == 1 and warnings[0].startswith("channel 'clock' only rises")

@@ -129,6 +129,23 @@ class RowData:
             self.refuse_bad_rows()
 
 
+class IntervalSums(NamedTuple):
+    """Sums over each static interval's rows of a stream, every row once (``k`` intervals, ``p`` channels): what the
+    pose checks need without the rows in memory.
+
+    Attributes:
+        counts: ``k``, the rows. readings: ``k x p``, ``sum z`` (raw units, less the stream's shift).
+        squares: ``k``, ``sum |z|^2`` of the same. residuals: ``k x p``, ``sum (z - m S - o)`` at the fit.
+        dof: ``k``, the rows' residual degrees of freedom summed (``p`` a known row, ``p - d + 1`` an unknown one).
+    """
+
+    counts: torch.Tensor
+    readings: torch.Tensor
+    squares: torch.Tensor
+    residuals: torch.Tensor
+    dof: torch.Tensor
+
+
 @dataclass
 class StreamedRecording(RowData):
     """A row file of raw channels and load columns (NaN where the load is unknown), every row the same mass.

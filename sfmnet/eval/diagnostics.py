@@ -74,6 +74,9 @@ def calibration_diagnostics(
     direction_dims = recording.maps.shape[1] if model.constrained else recording.rank + 1
     known = recording.known
     groups = recording.same_load_groups
+    pose_sums = model.interval_sums()
+    # Pose means of a sample of every w-th row (a streamed fit without sums) see only 1 / w of the fit's parameters.
+    share = 1.0 if pose_sums is not None else 1 / model.unknown_row_weight(recording)
     goodness = goodness_of_fit(
         residuals,
         recording.readings,
@@ -92,20 +95,19 @@ def calibration_diagnostics(
         uncertainty.matrix_std,
         refinement_disagreement(model, recording, uncertainty),
         model.learnt_orientation_law,
-        global_parameters(model, recording, direction_dims),
+        global_parameters(model, recording, direction_dims) * share,
+        pose_sums,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
 
 
-def global_parameters(model: LinearCalibrator, recording: CalibrationRecording, direction_dims: int) -> float:
+def global_parameters(model: LinearCalibrator, recording: CalibrationRecording, direction_dims: int) -> int:
     """The fit's parameters shared by every row: the shape's ``n p`` and the offsets' ``p`` (when estimated), less the
-    ``d (d - 1) / 2`` of the directions' rotation where no known load fixes the frame (a gauge, not a parameter);
-    over the weight each unknown row of ``recording`` stands for (a streamed fit's sample of every ``w``-th row: the
-    fit, to every row, takes up only ``1 / w`` of the sample's residual degrees of freedom)."""
+    ``d (d - 1) / 2`` of the directions' rotation where no known load fixes the frame (a gauge, not a parameter)."""
     n, p = recording.rank, recording.readings.shape[1]
     gauge = 0 if bool(recording.known.any()) else direction_dims * (direction_dims - 1) // 2
-    return (n * p + (p if model.estimate_offset else 0) - gauge) / model.unknown_row_weight(recording)
+    return n * p + (p if model.estimate_offset else 0) - gauge
 
 
 def load_residuals(residuals: torch.Tensor, matrix: torch.Tensor) -> dict[str, float]:

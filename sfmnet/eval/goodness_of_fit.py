@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from sfmnet.data.rows import IntervalSums
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
 from sfmnet.linalg.uncertainty import relative_matrix_std
@@ -160,6 +161,37 @@ def pose_means(residuals: torch.Tensor, groups: torch.Tensor, dof: torch.Tensor)
     row_dof = group_means(dof.to(residuals.dtype)[:, None], groups)[0][:, 0]
     several = (counts > 1) & (row_dof > 0)
     return PoseMeans(squares=counts[several] * means[several].pow(2).sum(dim=1), dof=row_dof[several])
+
+
+class PoseStatistics(NamedTuple):
+    """What the pose checks need: the reading noise within poses (:func:`within_group_noise`, raw units) and each
+    pose's mean residual (:class:`PoseMeans`); from the rows in memory, or summed over a stream (every row)."""
+
+    within: float
+    means: PoseMeans
+
+
+def pose_statistics(
+    readings: torch.Tensor, residuals: torch.Tensor, groups: torch.Tensor, dof: torch.Tensor
+) -> PoseStatistics:
+    """:class:`PoseStatistics` of rows in memory: ``readings`` and ``residuals`` ``f x p``, ``groups`` and ``dof``
+    ``f`` (long)."""
+    return PoseStatistics(within_group_noise(readings, groups), pose_means(residuals, groups, dof))
+
+
+def summed_pose_statistics(sums: IntervalSums) -> PoseStatistics:
+    """:class:`PoseStatistics` of a stream's :class:`~sfmnet.data.rows.IntervalSums`, as :func:`pose_statistics` gives
+    them for the same rows in memory: the scatter within an interval is ``sum |z|^2 - |sum z|^2 / n_k``, its mean
+    residual's square ``n_k |rbar_k|^2 = |sum r|^2 / n_k``."""
+    counts = sums.counts.to(sums.readings.dtype)
+    rows = counts > 0
+    scatter = float((sums.squares[rows] - sums.readings[rows].pow(2).sum(dim=1) / counts[rows]).sum())
+    dof = (float(counts.sum()) - int(rows.sum())) * sums.readings.shape[1]
+    within = math.sqrt(max(scatter, 0.0) / dof) if dof > 0 else math.nan
+    row_dof = sums.dof / counts.clamp_min(1)
+    several = (counts > 1) & (row_dof > 0)
+    squares = sums.residuals[several].pow(2).sum(dim=1) / counts[several]
+    return PoseStatistics(within, PoseMeans(squares=squares, dof=row_dof[several]))
 
 
 def pose_misfit_ratio(poses: PoseMeans, noise: float) -> float:
@@ -325,6 +357,7 @@ def goodness_of_fit(
     refinement_disagreement: float | None = None,
     learnt_law: bool = False,
     parameters: float = 0,
+    pose_sums: IntervalSums | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -355,8 +388,11 @@ def goodness_of_fit(
         refinement_disagreement: a marginal fit's distance from the alternation fitted beside it, in its error bars
             (:func:`~sfmnet.eval.diagnostics.refinement_disagreement`).
         learnt_law: the fit rests on a law of directions learnt from these rows (the marginal's, not uniform).
-        parameters: the fit's global parameters (shape and offsets, less the rotation gauge) for
-            :func:`pose_misfit_z`.
+        parameters: the fit's global parameters (shape and offsets, less the rotation gauge) the pose means determine,
+            for :func:`pose_misfit_z`.
+        pose_sums: a stream's sums over every row of each static interval (with ``groups``), where ``readings`` and
+            ``residuals`` are only a sample of them (:func:`summed_pose_statistics`); None: the pose checks use
+            ``readings``, ``residuals`` and ``groups``.
 
     Returns:
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
@@ -380,7 +416,10 @@ def goodness_of_fit(
     if robust:
         fit_noise = robust_noise
     if groups is not None:
-        within = within_group_noise(readings, groups)
+        if pose_sums is None:
+            within, means = pose_statistics(readings, residuals, groups, dof)
+        else:
+            within, means = summed_pose_statistics(pose_sums)
         if math.isfinite(within) and within > 0:
             ratio = fit_noise / within
             metrics.update({"goodness/noise_within_groups": within, "goodness/noise_ratio": ratio})
@@ -389,7 +428,6 @@ def goodness_of_fit(
                     f"the model does not describe the data: its residuals are {ratio:.1f}x the noise seen within "
                     "static intervals or poses (rows in motion, a load that is not constant, a nonlinear sensor)"
                 )
-            means = pose_means(residuals, groups, dof)
             misfit = pose_misfit_ratio(means, within)
             z = pose_misfit_z(means, within, parameters)
             metrics["goodness/pose_misfit_ratio"] = misfit

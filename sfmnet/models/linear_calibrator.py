@@ -10,6 +10,7 @@ from torch import nn
 
 from sfmnet.calibration import Calibration, calibration_matrix
 from sfmnet.data.recording import CalibrationRecording
+from sfmnet.data.rows import IntervalSums
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
 from sfmnet.models.contracts import FitMode
 
@@ -181,6 +182,11 @@ class LinearCalibrator(nn.Module, ABC):
     def unknown_row_weight(self, recording: CalibrationRecording) -> float:
         """How many of the fitted recording's unknown-load rows each of ``recording``'s stands for (1: all are here)."""
         return 1.0
+
+    def interval_sums(self) -> IntervalSums | None:
+        """Sums over every row of each static interval the fit saw, where its report's rows are only a sample of them
+        (a streamed fit); None: the report's rows are all there is."""
+        return None
 
     def unknown_loads(self, recording: CalibrationRecording, unknown: UnknownRows | None = None) -> torch.Tensor:
         """The fitted loads of the rows whose load is unknown, ``f' x n``; ``unknown``: :meth:`unknown_directions`

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from sfmnet.data.recording import CalibrationRecording, first_magnitude_mismatch
-from sfmnet.data.rows import RowBlock, StreamedRecording
+from sfmnet.data.rows import IntervalSums, RowBlock, StreamedRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.anderson import AndersonAcceleration
 from sfmnet.linalg.factorisation import (
@@ -112,6 +112,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
     PASS_STATE = (
         "passes", "converged", "sample", "first_partial_row", "known", "centre", "singular_values", "affine_shape",
         "projection", "coverage", "frame_fixed", "reading_scale", "load_scale", "closed_form_scale", "residual_squares",
+        "interval_readings", "interval_residuals",
     )
 
     def get_extra_state(self) -> dict[str, object]:
@@ -155,6 +156,11 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.first_partial_row = self.data.rows
             # Readings, loads and the static interval (plus one; 0: none) of every stride-th row.
             self.sample = torch.zeros(math.ceil(self.data.rows / self.stride), p + n + 1, dtype=torch.float64)
+            # Per static interval: rows, sum z and sum |z|^2 (the noise within poses from every row, not the sample's).
+            self.interval_readings = torch.zeros(self.intervals, p + 2, dtype=torch.float64)
+            # Each channel's least and largest reading: a constant one carries no load (the range, not the variance,
+            # which rounding leaves at ~1e-13 for a column of 1.234).
+            self.channel_range = torch.stack([torch.full((p,), math.inf), torch.full((p,), -math.inf)]).double()
         elif self.passes == 1:
             m = metric_unknowns(n, self.estimate_offset)
             self.metric_normal = torch.zeros(m, m, dtype=torch.float64)
@@ -164,6 +170,8 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.design_gram = torch.zeros(k, k, dtype=torch.float64)
             self.design_readings = torch.zeros(k, p, dtype=torch.float64)
             self.residual_squares = torch.zeros(p, dtype=torch.float64)
+            # Per static interval: sum of residuals and of the rows' residual degrees of freedom (the poses' means).
+            self.interval_residuals = torch.zeros(self.intervals, p + 1, dtype=torch.float64)
 
     def accumulate(self, block: RowBlock) -> None:
         """Add one block (readings minus the data's shift) to this pass's sums; rows in motion are left out."""
@@ -181,11 +189,15 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.metric_normal += cross_product(design)
             self.metric_target += design.sum(dim=0)
         else:
-            self.accumulate_alternation(block)
+            self.accumulate_alternation(block, rows)
 
     def accumulate_moments(self, block: RowBlock, rows: torch.Tensor) -> None:
         """``rows``: each block row's index in the file."""
         self.moments.add_shifted(block.readings)
+        if len(block.readings):
+            low, high = self.channel_range
+            self.channel_range = torch.stack([torch.minimum(low, block.readings.min(dim=0).values),
+                                              torch.maximum(high, block.readings.max(dim=0).values)])
         given = torch.isfinite(block.loads)
         known = given.all(dim=1)
         partial = torch.nonzero(given.any(dim=1) & ~known)
@@ -193,11 +205,39 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.first_partial_row = min(self.first_partial_row, int(rows[partial[0]]))
         if known.any():
             self.known_rows.append(torch.cat([rows[known, None].double(), block.readings[known], block.loads[known]], 1))
+        squares = block.readings.pow(2).sum(dim=1, keepdim=True)
+        counted = torch.cat([torch.ones_like(squares), block.readings, squares], dim=1)
+        self.add_to_intervals(self.interval_readings, rows, counted)
         sampled = rows % self.stride == 0
         interval = 1 + self.interval_of(rows[sampled])
         self.sample[rows[sampled] // self.stride] = torch.cat(
             [block.readings[sampled], block.loads[sampled], interval[:, None].double()], dim=1
         )
+
+    @property
+    def intervals(self) -> int:
+        """The stream's static intervals (0 without them)."""
+        return 0 if self.data.intervals is None else len(self.data.intervals)
+
+    def interval_sums(self) -> IntervalSums | None:
+        """Each static interval's sums over every row (:class:`IntervalSums`), the residuals those of the last
+        alternation pass (at the fit, once it has converged); None without intervals or before that pass (the closed
+        form alone: the pose checks then use the sample)."""
+        if not self.intervals or self.passes <= 2:
+            return None
+        p = self.interval_readings.shape[1] - 2
+        readings, residuals = self.interval_readings, self.interval_residuals
+        return IntervalSums(
+            counts=readings[:, 0], readings=readings[:, 1 : p + 1], squares=readings[:, p + 1],
+            residuals=residuals[:, :p], dof=residuals[:, p],
+        )
+
+    def add_to_intervals(self, sums: torch.Tensor, rows: torch.Tensor, values: torch.Tensor) -> None:
+        """Add each of ``rows``' ``values`` (``b x c``) to its static interval's row of ``sums`` (``k x c``); rows
+        outside every interval add nothing."""
+        interval = self.interval_of(rows)
+        inside = interval >= 0
+        sums.index_add_(0, interval[inside], values[inside])
 
     def interval_of(self, rows: torch.Tensor) -> torch.Tensor:
         """Each of ``rows`` (file indices)'s static interval, ``r`` long; -1 outside them or without them."""
@@ -209,13 +249,17 @@ class StreamedShapeFromMotion(LinearCalibrator):
         """``m^ = (z - c) V Sigma^(-1/2)`` (eq. 8), ``b x n``, for readings minus the shift."""
         return (shifted - (self.centre - self.data.shift)) @ self.projection
 
-    def accumulate_alternation(self, block: RowBlock) -> None:
+    def accumulate_alternation(self, block: RowBlock, rows: torch.Tensor) -> None:
         centred = block.readings - (self.physical_offset() - self.data.shift)
         known = torch.isfinite(block.loads).all(dim=1)
         magnitude = self.data.magnitude
         motion = magnitude * unit_motion(centred, magnitude * self.physical_shape())
         motion[known] = block.loads[known]
-        self.residual_squares += (centred - motion @ self.physical_shape()).pow(2).sum(dim=0)
+        residual = centred - motion @ self.physical_shape()
+        self.residual_squares += residual.pow(2).sum(dim=0)
+        p, n = residual.shape[1], self.rank
+        dof = torch.where(known, p, p - n + 1)[:, None].double()
+        self.add_to_intervals(self.interval_residuals, rows, torch.cat([residual, dof], dim=1))
         design = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if self.estimate_offset else motion
         self.design_gram += cross_product(design)
         self.design_readings += cross_product(design, block.readings if self.estimate_offset else block.readings + self.data.shift)
@@ -226,13 +270,16 @@ class StreamedShapeFromMotion(LinearCalibrator):
             for name in ("count", "total", "cross"):
                 setattr(self.moments, name, strategy.reduce(getattr(self.moments, name), reduce_op="sum"))
             self.sample = strategy.reduce(self.sample, reduce_op="sum")
+            self.interval_readings = strategy.reduce(self.interval_readings, reduce_op="sum")
+            ranges = gather_by_rank(strategy, self.channel_range.flatten()).reshape(-1, 2, len(self.data.channels))
+            self.channel_range = torch.stack([ranges[:, 0].min(dim=0).values, ranges[:, 1].max(dim=0).values])
             self.first_partial_row = int(gather_by_rank(strategy, torch.tensor([float(self.first_partial_row)])).min())
             self.known = gather_rows(strategy, self.known_rows, 1 + len(self.data.channels) + self.rank, self.max_known_rows)
         elif self.passes == 1:
             self.metric_normal = strategy.reduce(self.metric_normal, reduce_op="sum")
             self.metric_target = strategy.reduce(self.metric_target, reduce_op="sum")
         else:
-            for name in ("design_gram", "design_readings", "residual_squares"):
+            for name in ("design_gram", "design_readings", "residual_squares", "interval_residuals"):
                 setattr(self, name, strategy.reduce(getattr(self, name), reduce_op="sum"))
 
     @torch.no_grad()
@@ -261,6 +308,12 @@ class StreamedShapeFromMotion(LinearCalibrator):
             raise SfmnetError(
                 f"only {int(moments.count)} samples for {needed} unknowns of the metric constraint: record at least "
                 f"{needed} orientations (dozens give a good calibration)"
+            )
+        constant = [name for name, low, high in zip(data.channels, *self.channel_range.tolist()) if low == high]
+        if constant:
+            raise SfmnetError(
+                f"channel {', '.join(constant)} is constant on every row fitted: it carries no load information; "
+                "leave it out with data.channel_columns=[...]"
             )
         self.check_known_magnitudes()
         self.centre = moments.mean() if self.estimate_offset else torch.zeros_like(moments.shift)

@@ -308,7 +308,9 @@ def monotonic_channel_warnings(readings: np.ndarray, channels: list[str], span: 
     if len(readings) < MONOTONIC_MIN_ROWS:
         return []
     steps = np.diff(readings, axis=0)
-    rising, falling = (steps >= 0).all(axis=0), (steps <= 0).all(axis=0)
+    # A constant channel neither rises nor falls (it is refused as constant, on its own).
+    moving = (steps != 0).any(axis=0)
+    rising, falling = (steps >= 0).all(axis=0) & moving, (steps <= 0).all(axis=0) & moving
     return [
         f"channel '{name}' only {'rises' if up else 'falls'} over {span}, like a timestamp or a counter: if it is one, "
         f"leave it out of the channels (data.time_column={name}, or data.channel_columns=[...])"
