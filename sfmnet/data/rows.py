@@ -134,8 +134,10 @@ class IntervalSums(NamedTuple):
     pose checks need without the rows in memory.
 
     Attributes:
-        counts: ``k``, the rows. readings: ``k x p``, ``sum z`` (raw units, less the stream's shift).
-        squares: ``k``, ``sum |z|^2`` of the same. residuals: ``k x p``, ``sum (z - m S - o)`` at the fit.
+        counts: ``k``, the rows.
+        readings: ``k x p``, ``sum z`` (raw units, less the stream's shift).
+        squares: ``k``, ``sum |z|^2`` of the same.
+        residuals: ``k x p``, ``sum (z - m S - o)`` at the fit.
         dof: ``k``, the rows' residual degrees of freedom summed (``p`` a known row, ``p - d + 1`` an unknown one).
     """
 

@@ -182,7 +182,8 @@ def pose_statistics(
 def summed_pose_statistics(sums: IntervalSums) -> PoseStatistics:
     """:class:`PoseStatistics` of a stream's :class:`~sfmnet.data.rows.IntervalSums`, as :func:`pose_statistics` gives
     them for the same rows in memory: the scatter within an interval is ``sum |z|^2 - |sum z|^2 / n_k``, its mean
-    residual's square ``n_k |rbar_k|^2 = |sum r|^2 / n_k``."""
+    residual's square ``n_k |rbar_k|^2 = |sum r|^2 / n_k``. (In memory the scatter is taken about each mean instead,
+    which loses nothing to cancellation; the stream's sums are of readings less its shift.)"""
     counts = sums.counts.to(sums.readings.dtype)
     rows = counts > 0
     scatter = float((sums.squares[rows] - sums.readings[rows].pow(2).sum(dim=1) / counts[rows]).sum())
