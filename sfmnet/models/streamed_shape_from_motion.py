@@ -205,11 +205,11 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.first_partial_row = min(self.first_partial_row, int(rows[partial[0]]))
         if known.any():
             self.known_rows.append(torch.cat([rows[known, None].double(), block.readings[known], block.loads[known]], 1))
+        interval = self.interval_of(rows)
         squares = block.readings.pow(2).sum(dim=1, keepdim=True)
-        counted = torch.cat([torch.ones_like(squares), block.readings, squares], dim=1)
-        self.add_to_intervals(self.interval_readings, rows, counted)
+        self.add_to_intervals(self.interval_readings, interval, torch.cat([torch.ones_like(squares), block.readings, squares], 1))
         sampled = rows % self.stride == 0
-        interval = 1 + self.interval_of(rows[sampled])
+        interval = 1 + interval[sampled]
         self.sample[rows[sampled] // self.stride] = torch.cat(
             [block.readings[sampled], block.loads[sampled], interval[:, None].double()], dim=1
         )
@@ -232,10 +232,10 @@ class StreamedShapeFromMotion(LinearCalibrator):
             residuals=residuals[:, :p], dof=residuals[:, p],
         )
 
-    def add_to_intervals(self, sums: torch.Tensor, rows: torch.Tensor, values: torch.Tensor) -> None:
-        """Add each of ``rows``' ``values`` (``b x c``) to its static interval's row of ``sums`` (``k x c``); rows
-        outside every interval add nothing."""
-        interval = self.interval_of(rows)
+    @staticmethod
+    def add_to_intervals(sums: torch.Tensor, interval: torch.Tensor, values: torch.Tensor) -> None:
+        """Add each row's ``values`` (``b x c``) to its static interval's row of ``sums`` (``k x c``), ``interval``
+        (``b``) from :meth:`interval_of`; rows outside every interval (-1) add nothing."""
         inside = interval >= 0
         sums.index_add_(0, interval[inside], values[inside])
 
@@ -259,7 +259,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         self.residual_squares += residual.pow(2).sum(dim=0)
         p, n = residual.shape[1], self.rank
         dof = torch.where(known, p, p - n + 1)[:, None].double()
-        self.add_to_intervals(self.interval_residuals, rows, torch.cat([residual, dof], dim=1))
+        self.add_to_intervals(self.interval_residuals, self.interval_of(rows), torch.cat([residual, dof], dim=1))
         design = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if self.estimate_offset else motion
         self.design_gram += cross_product(design)
         self.design_readings += cross_product(design, block.readings if self.estimate_offset else block.readings + self.data.shift)
