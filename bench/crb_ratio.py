@@ -51,7 +51,14 @@ known-law bound comes from the marginal model's Fisher information ``E[g g^T]``,
 ``z``; with the rotation gauge removed as above. Its quadrature (20,000 points) cannot resolve the
 sphere's posterior at SNR 100, so that column is left out for n = 3:
 
-    python bench/crb_ratio.py --law-bounds --trials 3
+    python bench/crb_ratio.py --law-bounds --trials 3 [--only 2:no:band:5 ...]
+
+``--unknown-law`` adds the bound of an estimator that does not know the law (any law on the circle or sphere may
+have drawn the directions, as for the marginal that learns it): the semiparametric bound, the shape's score with
+every change of the law's projected out (:func:`unknown_law_bound`). It is asymptotic (many rows), so a biased
+estimator of the table's 96-200 rows can be below it, as a smoothed law is at SNR 2:
+
+    python bench/crb_ratio.py --law-bounds --unknown-law --trials 3 --only 2:no:band:5 3:no:band:5
 """
 
 from __future__ import annotations
@@ -74,6 +81,7 @@ from sfmnet.cli import config_dir
 from sfmnet.simulators.simulated_sensor import FingertipDataModule, ForceSensor3DataModule
 from sfmnet.simulators.simulation import circle_arc, oriented_directions, sphere_zone
 from sfmnet.eval.diagnostics import calibration_diagnostics
+from sfmnet.linalg.directions import direction_grid
 from sfmnet.linalg.frame import orthogonal_procrustes, skew_generators
 from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
 from sfmnet.models.shape_from_motion import LEARNT_LAWS, ShapeFromMotion
@@ -182,27 +190,28 @@ def law_support(law: str, dims: int, count: int) -> torch.Tensor:
     return torch.stack([radius * azimuth.cos(), radius * azimuth.sin(), z], dim=1)
 
 
-def known_law_bound(
-    shape: torch.Tensor, noise_std: float, magnitude: float, law: str, rows: int, offsets: bool, seed: int,
-    draws: int = 2_000, quadrature: int = 20_000,
-) -> float:
-    """Trace of the shape's Cramer-Rao bound when each of ``rows`` directions is drawn from ``law``, the law known.
+def marginal_scores(
+    shape: torch.Tensor, noise_std: float, magnitude: float, law: str, offsets: bool, generator: torch.Generator,
+    draws: int, quadrature: int = 20_000, grid: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Scores of ``draws`` readings drawn from the marginal model ``p(z) = mean_k N(z; F u_k S + o, s^2 I)``
+    (``u_k`` :func:`law_support`): of ``S`` and (``offsets``) ``o``, ``draws x (n p [+ p])``, and with ``grid``
+    (``V x n``) the law's scores ``p(z | v) / p(z)`` for each grid direction ``v``, ``draws x V`` (else None).
 
-    Per row the information is ``E[g g^T]`` with ``g`` the score of the marginal density
-    ``p(z) = mean_k N(z; F u_k S + o, s^2 I)`` (``u_k`` :func:`law_support`): ``d/dS = F/s^2 E[u^T (z - F u S - o) | z]``,
-    ``d/do = 1/s^2 E[z - F u S - o | z]``, the posterior over the quadrature; the expectation by Monte Carlo.
-    The rotation of the frame is removed as a gauge (the errors are taken after aligning it).
+    ``d/dS = F/s^2 E[u^T (z - F u S - o) | z]``, ``d/do = 1/s^2 E[z - F u S - o | z]``, the posterior over the
+    quadrature. ``p(z | v) / p(z)`` is the score of the law moved towards a point mass at ``v``: its span over
+    ``v`` is every way the law can change.
     """
-    generator = torch.Generator().manual_seed(seed)
     n, p = shape.shape
     support = law_support(law, n, quadrature)
     means = magnitude * support @ shape
     # The offset's value does not change the information: drawn at zero.
     readings = magnitude * oriented_directions(law, draws, n, generator) @ shape
     readings = readings + noise_std * torch.randn(draws, p, generator=generator, dtype=shape.dtype)
-    scores = []
+    scores, law_scores = [], []
     for block in readings.split(250):
-        posterior = torch.softmax((block @ means.T - 0.5 * means.pow(2).sum(dim=1)) / noise_std**2, dim=1)
+        exponents = (block @ means.T - 0.5 * means.pow(2).sum(dim=1)) / noise_std**2
+        posterior = torch.softmax(exponents, dim=1)
         first = posterior @ support
         second = torch.einsum("jk,ka,kb->jab", posterior, support, support)
         shape_score = magnitude / noise_std**2 * (first[:, :, None] * block[:, None, :] - magnitude * second @ shape)
@@ -210,8 +219,17 @@ def known_law_bound(
         if offsets:
             parts.append((block - magnitude * first @ shape) / noise_std**2)
         scores.append(torch.cat(parts, dim=1))
-    score = torch.cat(scores)
-    information = rows * score.T @ score / draws
+        if grid is not None:
+            at_grid = magnitude * grid @ shape
+            log_marginal = torch.logsumexp(exponents, dim=1, keepdim=True) - math.log(quadrature)
+            law_scores.append(torch.exp((block @ at_grid.T - 0.5 * at_grid.pow(2).sum(dim=1)) / noise_std**2 - log_marginal))
+    return torch.cat(scores), torch.cat(law_scores) if grid is not None else None
+
+
+def gauge_free_trace(shape: torch.Tensor, information: torch.Tensor) -> float:
+    """Trace of the shape's part of ``information``'s inverse, the frame's rotation removed as a gauge (the errors
+    are taken after aligning it)."""
+    n, p = shape.shape
     gauge = torch.stack([(turn @ shape).flatten() for turn in skew_generators(n, shape.dtype)], dim=1)
     gauge = torch.cat([gauge, gauge.new_zeros(information.shape[0] - n * p, gauge.shape[1])])
     basis, _ = torch.linalg.qr(gauge, mode="complete")
@@ -220,27 +238,83 @@ def known_law_bound(
     return float(covariance.diagonal()[: n * p].sum())
 
 
-def law_bound_table(trials: int, snrs: list[float]) -> None:
-    """Print the ``--law-bounds`` table: sqrt(known-law bound / per-direction bound), summed over sessions."""
-    print("| n | offsets | law | " + " | ".join(f"SNR {snr:g}" for snr in snrs) + " |")
-    print("|---|---|---|" + "---|" * len(snrs))
+def known_law_bound(
+    shape: torch.Tensor, noise_std: float, magnitude: float, law: str, rows: int, offsets: bool, seed: int,
+    draws: int = 2_000, quadrature: int = 20_000,
+) -> float:
+    """Trace of the shape's Cramer-Rao bound when each of ``rows`` directions is drawn from ``law``, the law known.
+
+    Per row the information is ``E[g g^T]`` with ``g`` the score of the marginal density (:func:`marginal_scores`),
+    the expectation by Monte Carlo.
+    """
+    generator = torch.Generator().manual_seed(seed)
+    score, _ = marginal_scores(shape, noise_std, magnitude, law, offsets, generator, draws, quadrature)
+    return gauge_free_trace(shape, rows * score.T @ score / draws)
+
+
+# Ridge strengths (times the mean diagonal of the law scores' Gram matrix) tried for the projection of
+# unknown_law_bound; the one that leaves the least information on held-out draws is kept.
+PROJECTION_RIDGES = (1e-2, 1e-4, 1e-6, 1e-8)
+
+
+def unknown_law_bound(
+    shape: torch.Tensor, noise_std: float, magnitude: float, law: str, rows: int, offsets: bool, seed: int,
+    draws: int = 20_000, grid_size: int | None = None,
+) -> float:
+    """Trace of the shape's Cramer-Rao bound for an estimator that does not know the law its directions are drawn
+    from (any law on the circle or sphere; the noise level known), each of ``rows`` directions drawn from ``law``.
+
+    The semiparametric bound: per row, the information in the part of the shape's score ``g`` that no change of
+    the law can mimic, ``E[(g - B h)(g - B h)^T]`` with ``h`` the law's scores on a grid (:func:`marginal_scores`)
+    and ``B h`` the projection of ``g`` onto them. ``B`` is fitted by ridge regression on one third of the draws,
+    its ridge chosen on another, and the information measured on the last. A ``B`` short of the projection (a
+    finite grid, a ridge, Monte Carlo) leaves more information, never less, so this is a lower bound on that
+    bound, up to the last third's Monte Carlo error.
+    """
+    n = shape.shape[0]
+    grid = direction_grid(n, grid_size or (720 if n == 2 else 3000))
+    generator = torch.Generator().manual_seed(seed)
+    parts = [marginal_scores(shape, noise_std, magnitude, law, offsets, generator, draws, grid=grid) for _ in range(3)]
+    (fit_g, fit_h), (choose_g, choose_h), (test_g, test_h) = parts
+    mean_h = fit_h.mean(dim=0)
+    gram = (fit_h - mean_h).T @ (fit_h - mean_h)
+    cross = (fit_h - mean_h).T @ fit_g
+    scale = float(gram.diagonal().mean())
+
+    def information(ridge: float, g: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        projection = torch.linalg.solve(gram + ridge * scale * torch.eye(len(gram), dtype=gram.dtype), cross)
+        left = g - (h - mean_h) @ projection
+        return rows * left.T @ left / len(left)
+
+    ridge = max(PROJECTION_RIDGES, key=lambda r: gauge_free_trace(shape, information(r, choose_g, choose_h)))
+    return gauge_free_trace(shape, information(ridge, test_g, test_h))
+
+
+def law_bound_table(trials: int, snrs: list[float], only: list[str], unknown_law: bool) -> None:
+    """Print the ``--law-bounds`` table, a row per law and SNR: sqrt(known-law bound / per-direction bound) and (with
+    ``unknown_law``) sqrt(unknown-law bound / per-direction bound), each bound summed over sessions (``only``: rows
+    named ``n:offsets:law:snr``)."""
+    columns = ["known-law bound / CRB", *(["unknown-law bound / CRB"] if unknown_law else [])]
+    print("| n | offsets | law | SNR | " + " | ".join(columns) + " |")
+    print("|---|---|---|---|" + "---|" * len(columns))
     for n in (2, 3):
         for offsets in (False, True):
             for law in LAWS[:-1]:
-                cells = []
                 for snr in snrs:
-                    if n == 3 and snr > 20:
-                        cells.append("-")
+                    row = f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}"
+                    if (only and row not in only) or (n == 3 and snr > 20):
                         continue
-                    known_law, per_direction = 0.0, 0.0
+                    bounds = torch.zeros(1 + len(columns), dtype=torch.float64)
                     for seed in range(trials):
                         datamodule = law_session(n, law, snr, offsets, seed)
                         truth, noise_std, bound = per_direction_bound(datamodule, snr, offsets)
                         recording = datamodule.data.recordings["rotation"]
-                        per_direction += bound
-                        known_law += known_law_bound(truth, noise_std, recording.magnitude, law, len(recording.readings), offsets, seed)
-                    cells.append(f"{math.sqrt(known_law / per_direction):.2f}")
-                print(f"| {n} | {'yes' if offsets else 'no'} | {law} | " + " | ".join(cells) + " |", flush=True)
+                        arguments = (truth, noise_std, recording.magnitude, law, len(recording.readings), offsets, seed)
+                        bounds += torch.tensor(
+                            [bound, known_law_bound(*arguments), *([unknown_law_bound(*arguments)] if unknown_law else [])]
+                        )
+                    cells = " | ".join(f"{float((b / bounds[0]).sqrt()):.2f}" for b in bounds[1:])
+                    print(f"| {n} | {'yes' if offsets else 'no'} | {law} | {snr:g} | {cells} |", flush=True)
 
 
 def law_contains(law: str, directions: torch.Tensor) -> torch.Tensor:
@@ -409,10 +483,11 @@ def main() -> None:
     parser.add_argument("--laws", action="store_true", help="the orientation-law table (see above)")
     parser.add_argument("--processes", type=int, default=1, help="trial processes for --laws (one thread each)")
     parser.add_argument("--law-bounds", action="store_true", help="the known-law bound against the per-direction one (see above)")
+    parser.add_argument("--unknown-law", action="store_true", help="--law-bounds: add the bound with the law unknown (see above)")
     parser.add_argument("--untied", action="store_true", help="--laws: withhold the poses' labels (no tied directions)")
     parser.add_argument("--learnt-law", default=LEARNT_LAW_DEFAULT, choices=LEARNT_LAWS, help="the marginal's law of directions (model.learnt_law)")
     parser.add_argument("--true-law", action="store_true", help="--laws: add the marginal given the true law of directions (see above)")
-    parser.add_argument("--only", nargs="+", default=[], help="--laws rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
+    parser.add_argument("--only", nargs="+", default=[], help="--laws or --law-bounds rows to run, as n:offsets:law:snr (e.g. 3:yes:band:20)")
     parser.add_argument("--samples", type=int, default=None, help="--laws: rows per session instead of 96 (n = 2) and 200 (n = 3)")
     parser.add_argument("--p-equals-n", action="store_true", help="--laws: as many channels as axes (see above)")
     parser.add_argument("--record", type=Path, default=None, help="--laws: JSON-lines file of finished rows (see above)")
@@ -430,7 +505,7 @@ def main() -> None:
         )
         return
     if args.law_bounds:
-        law_bound_table(args.trials, args.snr)
+        law_bound_table(args.trials, args.snr, args.only, args.unknown_law)
         return
     print("| sensor | SNR | closed form / CRB | " + " | ".join(f"{r} / CRB" for r in args.refinements) + " |")
     print("|---|---|" + "---|" * (len(args.refinements) + 1))
