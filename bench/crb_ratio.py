@@ -208,6 +208,7 @@ def marginal_scores(
     # The offset's value does not change the information: drawn at zero.
     readings = magnitude * oriented_directions(law, draws, n, generator) @ shape
     readings = readings + noise_std * torch.randn(draws, p, generator=generator, dtype=shape.dtype)
+    at_grid = magnitude * grid @ shape if grid is not None else None
     scores, law_scores = [], []
     for block in readings.split(250):
         exponents = (block @ means.T - 0.5 * means.pow(2).sum(dim=1)) / noise_std**2
@@ -219,8 +220,7 @@ def marginal_scores(
         if offsets:
             parts.append((block - magnitude * first @ shape) / noise_std**2)
         scores.append(torch.cat(parts, dim=1))
-        if grid is not None:
-            at_grid = magnitude * grid @ shape
+        if at_grid is not None:
             log_marginal = torch.logsumexp(exponents, dim=1, keepdim=True) - math.log(quadrature)
             law_scores.append(torch.exp((block @ at_grid.T - 0.5 * at_grid.pow(2).sum(dim=1)) / noise_std**2 - log_marginal))
     return torch.cat(scores), torch.cat(law_scores) if grid is not None else None
@@ -290,6 +290,11 @@ def unknown_law_bound(
     return gauge_free_trace(shape, information(ridge, test_g, test_h))
 
 
+def row_name(n: int, offsets: bool, law: str, snr: float) -> str:
+    """A table row's name as ``--only`` takes it, ``n:offsets:law:snr`` (e.g. ``3:yes:band:20``)."""
+    return f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}"
+
+
 def law_bound_table(trials: int, snrs: list[float], only: list[str], unknown_law: bool) -> None:
     """Print the ``--law-bounds`` table, a row per law and SNR: sqrt(known-law bound / per-direction bound) and (with
     ``unknown_law``) sqrt(unknown-law bound / per-direction bound), each bound summed over sessions (``only``: rows
@@ -301,7 +306,7 @@ def law_bound_table(trials: int, snrs: list[float], only: list[str], unknown_law
         for offsets in (False, True):
             for law in LAWS[:-1]:
                 for snr in snrs:
-                    row = f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}"
+                    row = row_name(n, offsets, law, snr)
                     if (only and row not in only) or (n == 3 and snr > 20):
                         continue
                     bounds = torch.zeros(1 + len(columns), dtype=torch.float64)
@@ -444,7 +449,7 @@ def law_table(
             for offsets in (False, True):
                 for law in LAWS:
                     for snr in snrs:
-                        row = f"{n}:{'yes' if offsets else 'no'}:{law}:{snr:g}"
+                        row = row_name(n, offsets, law, snr)
                         if only and row not in only:
                             continue
                         if row in done:
