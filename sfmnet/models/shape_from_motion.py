@@ -66,25 +66,29 @@ ALTERNATION_BIASED_BELOW_SNR = 10.0
 ALTERNATION_BESIDE_STEPS = 10
 # Smoothed EM steps of the nonparametric distribution of directions per training step of the marginal refinement.
 PRIOR_STEPS = 100
-# Width of the smoothing of that distribution per squared angular spread of one sample (1/rad):
-# measured on the orientation laws of bench/crb_ratio.py --laws (SNR 2-20).
+# Width of the smoothing of that distribution per squared angular spread of one sample (1/rad), below a direction SNR
+# of UNSMOOTHED_LAW_FROM_SNR: measured on the orientation laws of bench/crb_ratio.py --laws (SNR 2-20).
 PRIOR_SMOOTHING = 3.0
+# From this direction SNR (the closed form's, one for the whole recording, of a pose's mean when tied) the nonparametric
+# law is not smoothed: its EM steps go to the nonparametric maximum-likelihood law (Kiefer and Wolfowitz 1956), whose
+# joint fit with the shape has no smoothing bias. bench/crb_ratio.py --laws, 20 sessions a row: on the circle's band at
+# SNR 5 the nonparametric law alone came out 1.21x the bound smoothed and 0.93x unsmoothed, and the default law 1.30x
+# and 0.94x. At SNR 2 the unsmoothed law cost more than its smoothing (the hemisphere 1.15x to 1.42x, the cone 0.96x to
+# 1.44x). Set between the two SNRs measured.
+UNSMOOTHED_LAW_FROM_SNR = 3.5
 # The marginal's distributions of directions (model.learnt_law): a free weight per grid direction
-# (smoothed EM), a log-density of harmonics of the degree the BIC picks, the uniform law, or "held_out" (the
+# (EM, smoothed at low SNR), a log-density of harmonics of the degree the BIC picks, the uniform law, or "held_out" (the
 # default): at each update whichever of ShapeFromMotion.held_out_laws fitted to half the directions best predicts
 # the other half (README, "Error against the Cramér-Rao bound": each law is ahead on some orientation laws).
 LEARNT_LAWS = ("nonparametric", "harmonic", "uniform", "held_out")
-# The laws "held_out" chooses between at any SNR. On a tie the earlier law is kept: on uniform directions the
-# harmonic law of degree 0 is the uniform law to the bit, and the uniform one is named.
+# The laws "held_out" chooses between; on a tie the earlier law is kept. Where one direction's spread (1 / direction
+# SNR, radians) is under the grid's spacing the harmonic law joins them (held_out_laws): there the nonparametric law is
+# a spike per direction on the grid, which holds each direction where the closed form put it, and the harmonic law
+# moves the sphere's band and cone with offsets at SNR 20 from 1.22x and 1.13x the bound to 0.98x and 1.02x (10
+# sessions; bench/crb_ratio.py --laws). Where the spread is wider the unsmoothed nonparametric law keeps the edges the
+# harmonic law was for, and the held-out score took the harmonic law where it was the worse estimate (20 sessions:
+# the sphere's band at SNR 5, 1.40x the bound with it and 1.19x without; the circle's band, 1.07x and 0.94x).
 HELD_OUT_LAWS = ("uniform", "nonparametric")
-# From this direction SNR (the closed form's, one for the whole recording, of a pose's mean when tied) "held_out"
-# weighs the harmonic law too. bench/crb_ratio.py --laws (10 sessions a row), against the choice without it (whose
-# figures there were the nonparametric law's): it took the circle's band at SNR 5 from 1.25x the bound to 1.12x and
-# the sphere's hemisphere, band and cone with offsets from 1.22 (SNR 5), 1.34 and 1.21x (SNR 20) to 1.14, 0.98 and
-# 1.02x. At SNR 2 the held-out likelihoods of a smooth law and a sharp-edged one differ by less than their noise,
-# and where the harmonic law won on a cone it was the worse estimate (circle 1.33x against 1.09x, sphere 1.31x
-# against 1.17x). Set between the two SNRs measured.
-HARMONIC_HELD_OUT_FROM_SNR = 3.5
 # Smoothed EM steps from the uniform law of the nonparametric candidate fitted to one half of the directions.
 HELD_OUT_EM_STEPS = 300
 # That candidate's smoothing is at least this fraction of the spacing of its directions spread evenly
@@ -188,10 +192,11 @@ class ShapeFromMotion(LinearCalibrator):
         refinement: ``"auto"``, ``"alternation"``, ``"penalty"`` or ``"marginal"`` (see above).
         marginal_grid: directions in the marginal's grid (default 512 on a circle, 2000 on a sphere).
         learnt_law: the marginal's distribution of directions, ``"held_out"`` (the default): at each update the
-            uniform, the nonparametric or (from direction SNR :data:`HARMONIC_HELD_OUT_FROM_SNR`) the harmonic law,
-            whichever fitted to half the free directions best predicts the other half (:meth:`update_law`); or one of
-            them always: ``"nonparametric"`` (a smoothed weight per grid direction), ``"harmonic"`` (a log-density
-            of degree 0-4, by the BIC), ``"uniform"`` (not learnt).
+            uniform or the nonparametric law (and the harmonic law where a direction's spread is under the grid's
+            spacing, :meth:`held_out_laws`), whichever fitted to half the free directions best predicts the other
+            half (:meth:`update_law`); or one law always: ``"nonparametric"`` (a weight per grid direction, smoothed
+            below direction SNR :data:`UNSMOOTHED_LAW_FROM_SNR`), ``"harmonic"`` (a log-density of degree 0-4, by
+            the BIC), ``"uniform"`` (not learnt).
         alternation_steps: alternation rounds per training step (full batches only).
         robust: ``"huber"`` weights each row of the alternation's least-squares step by Huber's
             rule on its residual, so a few bad rows (motion, a bump, a slipped mass) cannot pull
@@ -430,11 +435,13 @@ class ShapeFromMotion(LinearCalibrator):
         self.log_noise = dense_parameter((torch.as_tensor(noise, dtype=self.shape.dtype) / self.reading_scale).log())
 
     def held_out_laws(self) -> tuple[str, ...]:
-        """The laws ``learnt_law="held_out"`` chooses between: :data:`HELD_OUT_LAWS`, and the harmonic law from a
-        direction SNR of :data:`HARMONIC_HELD_OUT_FROM_SNR`; none for another ``learnt_law``."""
+        """The laws ``learnt_law="held_out"`` chooses between: :data:`HELD_OUT_LAWS`, and the harmonic law where one
+        direction's spread (``1 / direction SNR`` radians) is under the grid's spacing; none for another ``learnt_law``."""
         if self.learnt_law != "held_out":
             return ()
-        return HELD_OUT_LAWS + (("harmonic",) if self.direction_snr >= HARMONIC_HELD_OUT_FROM_SNR else ())
+        d = self.direction_maps.shape[1]
+        spike_per_direction = 1 / self.direction_snr < grid_spacing(d, self.grid_size(d))
+        return HELD_OUT_LAWS + (("harmonic",) if spike_per_direction else ())
 
     def grid_size(self, dims: int) -> int:
         """Directions in the marginal's grid: ``marginal_grid``, else 512 on a circle and 2000 on a sphere.
@@ -472,10 +479,10 @@ class ShapeFromMotion(LinearCalibrator):
 
         From the free directions' grid likelihoods ``L_jk = N(z_j; o + u_k D_c S, s^2 I)`` (:meth:`fit_law`).
         ``learnt_law="held_out"`` first picks the law: the uniform law, the nonparametric one (smoothed at least
-        :data:`HELD_OUT_WIDTH_PER_SPACING` of its directions' spacing) and, from a direction SNR of
-        :data:`HARMONIC_HELD_OUT_FROM_SNR`, the harmonic one (:meth:`held_out_laws`) are each fitted to half the
-        directions and scored on the other half (:func:`held_out_log_likelihood`), so the nonparametric law's free
-        weights are learnt only where they predict directions they were not fitted to (:attr:`law_choice`).
+        :data:`HELD_OUT_WIDTH_PER_SPACING` of its directions' spacing) and, where a direction's spread is under the
+        grid's spacing, the harmonic one (:meth:`held_out_laws`) are each fitted to half the directions and
+        scored on the other half (:func:`held_out_log_likelihood`), so the nonparametric law's free weights are
+        learnt only where they predict directions they were not fitted to (:attr:`law_choice`).
         """
         index, readings, loads = batch
         centred = readings / self.reading_scale - self.offset
@@ -572,30 +579,37 @@ class ShapeFromMotion(LinearCalibrator):
 
         ``w <- K^T (w * L^T (1 / (L w))) / f_c`` with ``L`` the ``f_c x K`` grid likelihoods (each row
         scaled by its largest entry) and ``K`` of :meth:`prior_kernel`: EM's step towards the
-        nonparametric maximum-likelihood mixing distribution, smoothed to the resolution the data support.
+        nonparametric maximum-likelihood mixing distribution, smoothed to the resolution the data support
+        (from a direction SNR of :data:`UNSMOOTHED_LAW_FROM_SNR`, and without ``least_width``, plain EM: ``K = I``).
         """
         likelihood = torch.exp(log_likelihood - log_likelihood.max(dim=1, keepdim=True).values)
         kernel = self.prior_kernel(configuration, least_width)
         prior = start.exp()
         for _ in range(steps):
-            prior = kernel.T @ (prior * (likelihood.T @ (1 / (likelihood @ prior))) / len(likelihood))
+            prior = prior * (likelihood.T @ (1 / (likelihood @ prior))) / len(likelihood)
+            if kernel is not None:
+                prior = kernel.T @ prior
         # Grid points the data rule out keep a floor, so the log stays finite.
         return prior.clamp_min(torch.finfo(prior.dtype).tiny).log()
 
-    def prior_kernel(self, configuration: int, least_width: float = 0.0) -> torch.Tensor:
-        """The smoothing kernel of :meth:`smoothed_em_law` between grid points, ``K x K`` (rows sum to one).
+    def prior_kernel(self, configuration: int, least_width: float = 0.0) -> torch.Tensor | None:
+        """The smoothing kernel of :meth:`smoothed_em_law` between grid points, ``K x K`` (rows sum to one), or None
+        for none.
 
         A von Mises-Fisher kernel ``exp(kappa u_k . u_l)``, ``kappa = 1 / h^2``, of angular width
         ``h = max(PRIOR_SMOOTHING * a^2, least_width)`` (radians), ``a = s / rms(singular values of D_c S)`` the spread of
-        one sample's direction (of a pose's mean, ``s`` over the square root of the rows per pose, when tied). Smoothing tames the unsmoothed estimate's spikes where ``a`` is
-        wide (SNR ~ 2); its own bias, ``O(h^2) = O(a^4)``, stays below the incidental-parameter bias
-        ``O(a^2)`` it replaces where ``a`` is narrow.
+        one sample's direction (of a pose's mean, ``s`` over the square root of the rows per pose, when tied). Smoothing
+        tames the unsmoothed estimate's spikes where ``a`` is wide (SNR ~ 2); from a direction SNR of
+        :data:`UNSMOOTHED_LAW_FROM_SNR` its bias costs more than the spikes, and ``h = least_width`` (None when 0).
         """
         singular = torch.linalg.svdvals(self.direction_maps[configuration] @ self.shape.detach())
         # A tied direction rests on its pose's mean reading, whose noise is smaller.
         noise = torch.exp(self.log_noise.detach()) / math.sqrt(self.rows_per_direction)
         spread = float(noise / singular.pow(2).mean().sqrt())
-        width = max(PRIOR_SMOOTHING * spread**2, least_width)
+        smoothing = PRIOR_SMOOTHING * spread**2 if self.direction_snr < UNSMOOTHED_LAW_FROM_SNR else 0.0
+        width = max(smoothing, least_width)
+        if width == 0.0:
+            return None
         return torch.softmax(self.grid @ self.grid.T / width**2, dim=1)
 
     def marginal_loss(self, batch: Batch) -> dict[str, torch.Tensor]:
