@@ -186,7 +186,8 @@ def test_the_marginal_s_error_bars_rest_on_its_own_direction_estimates():
     """2-axis band of directions at SNR 5, tared, no known loads (bench/crb_ratio.py --laws): a noisy row's argmin
     direction scatters wider than the band, and information evaluated there made the bars too small (the RMS
     matrix error 2.04x the RMS bar over 10 sessions). At the posterior-mean directions under the learnt law
-    (:meth:`ShapeFromMotion.information_directions`) it is 1.51x; these 8 sessions 2.15x and 1.58x."""
+    (:meth:`ShapeFromMotion.information_directions`) it is 1.51x; these 8 sessions 2.15x and 1.58x with the law
+    smoothed, 1.43x and 0.92x since it is not (from a direction SNR of 3.5; the error itself smaller)."""
     from sfmnet.simulators.simulated_sensor import FingertipDataModule
     from sfmnet.linalg.frame import orthogonal_procrustes
 
@@ -211,6 +212,8 @@ def test_the_marginal_s_error_bars_rest_on_its_own_direction_estimates():
         model.information_directions = lambda recording, directions: directions
         squares["argmin"] += float(model.uncertainty(recording, loads, unknown).matrix_std.pow(2).sum())
     ratios = {k: (error2 / v) ** 0.5 for k, v in squares.items()}
-    # The premise (bars at the argmin too small), then the mend: a fifth or more off the misfit of the bars.
-    assert ratios["argmin"] > 1.9, ratios
+    # The premise (bars at the argmin too small), then the mend: a fifth or more off the misfit of the bars, and
+    # bars that describe the error.
+    assert ratios["argmin"] > 1.3, ratios
     assert ratios["posterior"] < 0.8 * ratios["argmin"], ratios
+    assert ratios["posterior"] < 1.1, ratios
