@@ -92,10 +92,10 @@ def test_learnt_orientation_law_is_unbiased_where_a_uniform_prior_is_not(monkeyp
 
 def test_the_default_law_on_a_band_at_snr_5_is_the_unsmoothed_nonparametric_law():
     """Circle band at SNR 5: the held-out choice is between the uniform and the nonparametric law (the harmonic law is
-    no candidate: where it won the held-out score it was often the worse estimate), and from a direction SNR of 3.5 the
-    nonparametric law's EM runs unsmoothed to the nonparametric maximum-likelihood law, whose joint fit with ``S`` is
-    near the bound: these 6 sessions 0.87x, where the law smoothed as below SNR 3.5 gave 1.23x (better in none of
-    them) and the harmonic law 1.0x. Below SNR 3.5 the law is still smoothed (unsmoothed, the hemisphere and the cone
+    no candidate where a direction is wider than the grid: there it won the held-out score where it was the worse
+    estimate), and from a direction SNR of 3.5 the nonparametric law's EM runs unsmoothed to the nonparametric
+    maximum-likelihood law, whose joint fit with ``S`` is near the bound: these 6 sessions 0.87x, where the law
+    smoothed as below SNR 3.5 gave 1.23x (better in none of them) and the harmonic law 0.96x. Below SNR 3.5 the law is still smoothed (unsmoothed, the hemisphere and the cone
     at SNR 2 cost 1.4x), and the held-out candidates keep their least width at any SNR."""
     error = bound = 0.0
     for recording, truth, trace in bounded_sessions("band", range(6), snr=5.0):
