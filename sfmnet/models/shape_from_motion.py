@@ -602,12 +602,13 @@ class ShapeFromMotion(LinearCalibrator):
         tames the unsmoothed estimate's spikes where ``a`` is wide (SNR ~ 2); from a direction SNR of
         :data:`UNSMOOTHED_LAW_FROM_SNR` its bias costs more than the spikes, and ``h = least_width`` (None when 0).
         """
-        singular = torch.linalg.svdvals(self.direction_maps[configuration] @ self.shape.detach())
-        # A tied direction rests on its pose's mean reading, whose noise is smaller.
-        noise = torch.exp(self.log_noise.detach()) / math.sqrt(self.rows_per_direction)
-        spread = float(noise / singular.pow(2).mean().sqrt())
-        smoothing = PRIOR_SMOOTHING * spread**2 if self.direction_snr < UNSMOOTHED_LAW_FROM_SNR else 0.0
-        width = max(smoothing, least_width)
+        width = least_width
+        if self.direction_snr < UNSMOOTHED_LAW_FROM_SNR:
+            singular = torch.linalg.svdvals(self.direction_maps[configuration] @ self.shape.detach())
+            # A tied direction rests on its pose's mean reading, whose noise is smaller.
+            noise = torch.exp(self.log_noise.detach()) / math.sqrt(self.rows_per_direction)
+            spread = float(noise / singular.pow(2).mean().sqrt())
+            width = max(PRIOR_SMOOTHING * spread**2, least_width)
         if width == 0.0:
             return None
         return torch.softmax(self.grid @ self.grid.T / width**2, dim=1)
