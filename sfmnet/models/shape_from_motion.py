@@ -510,7 +510,7 @@ class ShapeFromMotion(LinearCalibrator):
 
         A pose's direction rests on its mean reading, so a few poses give a few sharp directions, and the unsmoothed law
         is a spike at each: the marginal with it is then the profile likelihood over the poses' directions, with the
-        alternation's bias (on the sphere's 12 poses at SNR 2 it let an axis of ``S`` the poses hardly span grow 2.3-2.6x
+        alternation's bias (on the sphere's 12 poses at SNR 2 it let an axis of ``S`` the poses hardly span grow 2.3-2.7x
         in 2 of 10 sessions). Untied rows are many and their directions overlap, and there the width costs more than it
         gives (the sphere's band at SNR 5, 20 sessions: 1.19x the bound unsmoothed, 1.58x at this width): method §5.
         """
