@@ -494,7 +494,7 @@ class ShapeFromMotion(LinearCalibrator):
                     law: held_out_log_likelihood(
                         log_likelihood,
                         lambda half, law=law: self.fit_law(
-                            law, half, c, uniform, HELD_OUT_EM_STEPS, HELD_OUT_WIDTH_PER_SPACING * grid_spacing(self.grid.shape[1], len(half))
+                            law, half, c, uniform, HELD_OUT_EM_STEPS, self.held_out_width(len(half))
                         )[0],
                     )
                     for law in self.held_out_laws()
@@ -504,9 +504,14 @@ class ShapeFromMotion(LinearCalibrator):
                 self.law_choice[c], log_likelihood, c, self.log_prior[c], least_width=self.tied_law_width(len(log_likelihood))
             )
 
+    def held_out_width(self, directions: int) -> float:
+        """The least smoothing width (radians) of a nonparametric law learnt from ``directions`` free directions, as
+        the held-out choice scores it: :data:`HELD_OUT_WIDTH_PER_SPACING` of their spacing (:func:`grid_spacing`)."""
+        return HELD_OUT_WIDTH_PER_SPACING * grid_spacing(self.grid.shape[1], directions)
+
     def tied_law_width(self, poses: int) -> float:
         """The nonparametric law's least smoothing width (radians) when learnt from ``poses`` tied directions:
-        :data:`HELD_OUT_WIDTH_PER_SPACING` of their spacing, the width the held-out choice scores it at; untied, 0.
+        :meth:`held_out_width`, the width the held-out choice scores it at; untied, 0.
 
         A pose's direction rests on its mean reading, so a few poses give a few sharp directions, and the unsmoothed law
         is a spike at each: the marginal with it is then the profile likelihood over the poses' directions, with the
@@ -514,7 +519,7 @@ class ShapeFromMotion(LinearCalibrator):
         in 2 of 10 sessions). Untied rows are many and their directions overlap, and there the width costs more than it
         gives (the sphere's band at SNR 5, 20 sessions: 1.19x the bound unsmoothed, 1.58x at this width): method §5.
         """
-        return HELD_OUT_WIDTH_PER_SPACING * grid_spacing(self.grid.shape[1], poses) if self.tied else 0.0
+        return self.held_out_width(poses) if self.tied else 0.0
 
     def uniform_law(self) -> torch.Tensor:
         """Log-weights of the uniform law on the marginal's grid, ``K``."""
