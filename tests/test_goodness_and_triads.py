@@ -29,7 +29,7 @@ from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.training.learner_module import LearnerModule
 from sfmnet.training.run import train
-from tests.conftest import compose_config, real_data
+from tests.conftest import SMALL_SPHERE_GRID, compose_config, real_data
 
 
 
@@ -456,9 +456,9 @@ def test_untied_rows_held_at_too_few_poses_for_their_error_bars_are_flagged():
     bars come out too small (seeds 0-5: 3.9, 0.7, 0.7, 1.4, 3.2 and 2.7x them, RMS 2.4; this is seed 0), and the check
     fired on all six; the same rows tied to their poses, 20 poses, or a continuous 60-degree cap pass.
 
-    The marginal's grid here is 1100 directions, not 2000 (the check does not look at it; the fits take half the time):
-    seed 0 then comes out 4.3x its bars."""
-    grid = {"marginal_grid": 1100}
+    The marginal's grid here is SMALL_SPHERE_GRID, not 2000 directions (the check does not look at it): seed 0 then
+    comes out 4.3x its bars."""
+    grid = {"marginal_grid": SMALL_SPHERE_GRID}
     recording, truth = held_poses(0, 10, rows=600, noise=0.1)
     model, warnings, goodness, uncertainty = diagnosed(recording, **grid)
     bars = relative_matrix_std(uncertainty.matrix_std, model.calibration_matrix())

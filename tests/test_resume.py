@@ -15,14 +15,12 @@ import numpy as np
 import torch
 
 from sfmnet.training.run import train
-from tests.conftest import REPO, compose_config, write_session
+from tests.conftest import REPO, SMALL_SPHERE_GRID, compose_config, write_session
 
-# Two L-BFGS iterations an epoch: the fit is still moving when it is killed, its optimiser history in play. The
-# sphere's grid a little over the least the marginal allows: its law is learnt each epoch (held out, three candidates), and
-# the default grid of 2000 directions took three times as long for the same test of resuming.
+# Two L-BFGS iterations an epoch: the fit is still moving when it is killed, its optimiser history in play.
 CALIBRATION = [
-    "experiment=lord3dof", "data.samples=300", "model.refinement=marginal", "model.marginal_grid=1100", "optimizer.max_iter=2",
-    "trainer.max_epochs=8",
+    "experiment=lord3dof", "data.samples=300", "model.refinement=marginal", f"model.marginal_grid={SMALL_SPHERE_GRID}",
+    "optimizer.max_iter=2", "trainer.max_epochs=8",
 ]
 # Closed loop off: it runs after the fit, which is what is killed and resumed here.
 EIGENSPACE = ["experiment=mkv_pca", "trainer.max_epochs=6", "eval.closed_loop=null"]
