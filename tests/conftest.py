@@ -53,6 +53,14 @@ def compose_config(overrides: list[str] | None = None) -> DictConfig:
         return compose(config_name="train", overrides=[*defaults, *(overrides or [])])
 
 
+@pytest.fixture(autouse=True)
+def one_torch_thread() -> None:
+    """One torch thread per test, as a run of small data sets for itself (config key ``threads``): xdist runs a process
+    per core, and torch's pool on top of that makes these fits' small operations wait on each other (the held-out law's
+    sphere test beside another busy core: 43 s with torch's default two threads, 31 s with one)."""
+    torch.set_num_threads(1)
+
+
 @pytest.fixture
 def run_dir(tmp_path: Path) -> Path:
     path = tmp_path / "run"

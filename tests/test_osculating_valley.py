@@ -92,7 +92,6 @@ def load_error(model: ShapeFromMotion, matrix: torch.Tensor) -> float:
 
 
 def valley_check(recording: CalibrationRecording) -> tuple[ShapeFromMotion, float, float, list[str]]:
-    torch.set_num_threads(1)
     model = refine_in_process(ShapeFromMotion(), recording, instantiate(compose_config().optimizer))
     loads = model.fitted_loads(recording)
     bars = model.uncertainty(recording, loads)
