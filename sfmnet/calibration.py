@@ -93,9 +93,15 @@ class Calibration:
             **self.extra,
         }
 
-    def save(self, path: str | Path) -> None:
-        """Write the calibration as JSON (the run's ``calibration.json`` format)."""
-        write_json_atomic(Path(path), self.to_dict())
+    def save(self, path: str | Path, overwrite: bool = False) -> None:
+        """Write the calibration as JSON (the run's ``calibration.json`` format); an existing file only with ``overwrite``,
+        as ``apply`` refuses to replace its output."""
+        path = Path(path)
+        if path.is_dir():
+            raise SfmnetError(f"{path} is a folder: give the file to write, e.g. {path / 'calibration.json'}")
+        if path.exists() and not overwrite:
+            raise SfmnetError(f"{path} already exists: choose another path or pass overwrite=True")
+        write_json_atomic(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:

@@ -105,6 +105,14 @@ def test_calibration_round_trips_through_its_file(tmp_path: Path):
     _, table = read_session(write_session_path(tmp_path))
     cal = sfmnet.calibrate(table[:, 1:7], magnitude=9.81, loads=table[:, 7:10])
     cal.save(str(tmp_path / "cal.json"))
+    # A file a user already has is kept unless they say to replace it.
+    saved = (tmp_path / "cal.json").read_text()
+    with pytest.raises(sfmnet.SfmnetError, match=r"cal.json already exists: choose another path or pass overwrite=True$"):
+        sfmnet.Calibration.load(str(tmp_path / "cal.json")).save(tmp_path / "cal.json")
+    assert (tmp_path / "cal.json").read_text() == saved
+    with pytest.raises(sfmnet.SfmnetError, match=r"is a folder: give the file to write"):
+        cal.save(tmp_path)
+    cal.save(tmp_path / "cal.json", overwrite=True)
     again = sfmnet.Calibration.load(str(tmp_path / "cal.json"))
     assert again.to_dict() == cal.to_dict()
     assert np.array_equal(again.apply(table[:4, 1:7]), cal.apply(table[:4, 1:7]))
