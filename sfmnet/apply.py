@@ -10,7 +10,7 @@ from sfmnet.calibration import Calibration
 from sfmnet.readers.delimited import open_delimited
 from sfmnet.readers.table_file import WHITESPACE_SUFFIXES, check_finite, read_table
 from sfmnet.errors import SfmnetError
-from sfmnet.io import write_csv_atomic
+from sfmnet.io import refuse_overwrite, write_csv_atomic
 
 OPTIONS = {"calibration", "input", "output", "overwrite"}
 
@@ -37,10 +37,7 @@ def output_names(axes: list[str], existing: list[str]) -> list[str]:
 
 def apply_calibration(calibration_path: Path, input_path: Path, output_path: Path, overwrite: bool) -> int:
     """Write ``output_path``: every input row and column, then the calibrated loads. Returns the row count."""
-    if output_path.is_dir():
-        raise SfmnetError(f"output={output_path} is a folder: give the file to write, e.g. output={output_path / 'loads.csv'}")
-    if output_path.exists() and not overwrite:
-        raise SfmnetError(f"{output_path} already exists: choose another output= or add overwrite=true")
+    refuse_overwrite(output_path, overwrite, "output=", "loads.csv", "add overwrite=true")
     if output_path.resolve() == input_path.resolve():
         raise SfmnetError("output= is the input file: write the loads to a new file")
     if output_path.resolve() == calibration_path.resolve():

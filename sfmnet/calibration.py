@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from sfmnet.errors import SfmnetError
-from sfmnet.io import write_json_atomic
+from sfmnet.io import refuse_overwrite, write_json_atomic
 from sfmnet.readers.input_file import special_kind
 
 
@@ -97,10 +97,7 @@ class Calibration:
         """Write the calibration as JSON (the run's ``calibration.json`` format); an existing file only with ``overwrite``,
         as ``apply`` refuses to replace its output."""
         path = Path(path)
-        if path.is_dir():
-            raise SfmnetError(f"{path} is a folder: give the file to write, e.g. {path / 'calibration.json'}")
-        if path.exists() and not overwrite:
-            raise SfmnetError(f"{path} already exists: choose another path or pass overwrite=True")
+        refuse_overwrite(path, overwrite, "", "calibration.json", "pass overwrite=True")
         write_json_atomic(path, self.to_dict())
 
     @classmethod

@@ -27,6 +27,20 @@ WRITE_REMEDIES = {
 }
 
 
+def refuse_overwrite(path: Path, overwrite: bool, setting: str, example: str, allow: str) -> None:
+    """Refuse to write ``path`` where it is a folder, or a file that exists and ``overwrite`` is not given: nothing a
+    user made is replaced.
+
+    Args:
+        setting: how the user names the path in the message (``"output="`` on the command line, ``""`` in Python);
+        example: a file name to suggest inside a folder; allow: how to say overwriting is meant.
+    """
+    if path.is_dir():
+        raise SfmnetError(f"{setting}{path} is a folder: give the file to write, e.g. {setting}{path / example}")
+    if path.exists() and not overwrite:
+        raise SfmnetError(f"{path} already exists: choose another {setting or 'path'} or {allow}")
+
+
 def write_error(path: Path, error: OSError) -> SfmnetError:
     """One line for a file-system error while writing ``path``: the path, the cause and what to do."""
     remedy = WRITE_REMEDIES.get(error.errno, "check the path and its folders")
