@@ -3,15 +3,23 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
 from sfmnet.data.recording import CalibrationRecording
-from sfmnet.eval.goodness_of_fit import GoodnessOfFit, PoseEquations, goodness_of_fit, untied_extra_poses
+from sfmnet.eval.goodness_of_fit import (
+    GoodnessOfFit,
+    PoseEquations,
+    goodness_of_fit,
+    untied_extra_poses,
+    within_group_noise,
+)
 from sfmnet.linalg.directions import distinct_directions, median_angle_from_poses
 from sfmnet.linalg.factorisation import known_load_equations, metric_unknowns
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
+from sfmnet.linalg.held_poses import held_pose_clusters
 from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, load_error_rms
 from sfmnet.models.linear_calibrator import LinearCalibrator
@@ -19,6 +27,9 @@ from sfmnet.models.linear_calibrator import LinearCalibrator
 # Below these the data hardly supports a rank-n calibration (see README, "Diagnostics").
 WARN_RANK_GAP = 3.0
 WARN_COVERAGE = 0.5
+# Poses found in the readings that scatter more than this many times the fit's noise are not held poses: held rows
+# scatter by the reading noise alone, which no fit's residuals fall below (lobes of a continuous sweep do).
+MAX_FOUND_POSE_SCATTER = 2.0
 
 
 def calibration_diagnostics(
@@ -74,6 +85,9 @@ def calibration_diagnostics(
     direction_dims = recording.maps.shape[1] if model.constrained else recording.rank + 1
     known = recording.known
     groups = recording.same_load_groups
+    found = groups is None
+    if found:
+        groups = held_pose_groups(recording, uncertainty.noise_std)
     pose_sums = model.interval_sums()
     # Pose means of a sample of every w-th row (a streamed fit without sums) see only 1 / w of the fit's parameters.
     share = 1.0 if pose_sums is not None else 1 / model.unknown_row_weight(recording)
@@ -97,9 +111,32 @@ def calibration_diagnostics(
         model.learnt_orientation_law,
         global_parameters(model, recording, direction_dims) * share,
         pose_sums,
+        poses_found=found,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
+
+
+def held_pose_groups(recording: CalibrationRecording, fit_noise: float) -> torch.Tensor | None:
+    """``f`` (long): the poses the rows were held at, found in their readings where no time or pose column gives them
+    (:func:`~sfmnet.linalg.held_poses.held_pose_clusters`), split by load as
+    :attr:`~sfmnet.data.recording.CalibrationRecording.same_load_groups` splits given ones; None where the rows show
+    none, or where they scatter more than :data:`MAX_FOUND_POSE_SCATTER` times ``fit_noise`` (raw units) within them."""
+    # One configuration at a time: another mass's poses may lie among this one's readings.
+    configuration = recording.row_configuration
+    clusters = torch.empty(len(configuration), dtype=torch.long)
+    found, offset = False, 0
+    for value in torch.unique(configuration):
+        rows = configuration == value
+        poses = held_pose_clusters(recording.readings[rows])
+        found |= poses is not None
+        labels = torch.arange(int(rows.sum())) if poses is None else poses
+        clusters[rows] = offset + labels
+        offset += int(labels.max()) + 1
+    if not found:
+        return None
+    groups = replace(recording, groups=clusters).same_load_groups
+    return groups if within_group_noise(recording.readings, groups) <= MAX_FOUND_POSE_SCATTER * fit_noise else None
 
 
 def global_parameters(model: LinearCalibrator, recording: CalibrationRecording, direction_dims: int) -> int:

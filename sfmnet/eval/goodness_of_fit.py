@@ -359,6 +359,7 @@ def goodness_of_fit(
     learnt_law: bool = False,
     parameters: float = 0,
     pose_sums: IntervalSums | None = None,
+    poses_found: bool = False,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -394,11 +395,14 @@ def goodness_of_fit(
         pose_sums: a stream's sums over every row of each static interval (with ``groups``), where ``readings`` and
             ``residuals`` are only a sample of them (:func:`summed_pose_statistics`); None: the pose checks use
             ``readings``, ``residuals`` and ``groups``.
+        poses_found: ``groups`` are poses found in the readings
+            (:func:`~sfmnet.eval.diagnostics.held_pose_groups`), not given by a time or pose column.
 
     Returns:
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
         ``goodness/pose_misfit_ratio`` (:func:`pose_misfit_ratio`) and ``goodness/pose_misfit_z``
-        (:func:`pose_misfit_z`) (with groups),
+        (:func:`pose_misfit_z`) (with groups), ``goodness/held_poses_found`` (groups of two or more rows, with
+        ``poses_found``),
         ``goodness/outliers``, ``goodness/outlier_fraction``, ``goodness/robust_noise``,
         ``goodness/known_load_rms``, ``goodness/known_load_ratio`` and ``goodness/known_load_pct``
         (the RMS as a percentage of the known loads' own RMS) (with known loads),
@@ -421,13 +425,18 @@ def goodness_of_fit(
             within, means = pose_statistics(readings, residuals, groups, dof)
         else:
             within, means = summed_pose_statistics(pose_sums)
+        where, hint = "static intervals or poses", ""
+        if poses_found:
+            metrics["goodness/held_poses_found"] = float(len(means.dof))
+            where = f"the {len(means.dof)} poses the rows were held at, as found in the readings"
+            hint = "; give data.group_column the pose of each row, or a time column, so that each pose's rows share one direction"
         if math.isfinite(within) and within > 0:
             ratio = fit_noise / within
             metrics.update({"goodness/noise_within_groups": within, "goodness/noise_ratio": ratio})
             if ratio > MAX_NOISE_RATIO:
                 warnings.append(
                     f"the model does not describe the data: its residuals are {ratio:.1f}x the noise seen within "
-                    "static intervals or poses (rows in motion, a load that is not constant, a nonlinear sensor)"
+                    f"{where} (rows in motion, a load that is not constant, a nonlinear sensor){hint}"
                 )
             misfit = pose_misfit_ratio(means, within)
             z = pose_misfit_z(means, within, parameters)
