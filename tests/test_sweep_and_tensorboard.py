@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import statistics
 import subprocess
 import sys
@@ -16,7 +17,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from tensorboard.plugins.hparams import plugin_data_pb2
 
 from sfmnet.training.headline_metrics import headline_keys
-from tests.conftest import REPO
+from sfmnet.training.run import train
+from tests.conftest import REPO, compose_config
 
 SAMPLES = ("48", "96")
 SEEDS = ("0", "1")
@@ -103,3 +105,16 @@ def test_headline_keys_put_the_main_method_first():
     assert headline_keys(keys) == [
         "eval/max_error_pct", "coverage", "drive_accuracy", "least_squares/eval/max_error_pct", "least_squares/coverage"
     ]
+
+
+def test_a_converged_fit_prints_its_repeated_epochs_once(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    """The default fit converges in its first epoch: the nine after it repeat its figures, and one line says so."""
+    cfg = compose_config(["trainer.max_epochs=5"])
+    cfg.trainer.enable_progress_bar = True
+    with caplog.at_level(logging.INFO, logger="sfmnet.training.progress"):
+        train(cfg, tmp_path / "run")
+    lines = [record.getMessage() for record in caplog.records if record.name == "sfmnet.training.progress"]
+    assert len(lines) == 2, lines
+    first, last = lines
+    assert first.startswith("shape_from_motion epoch 1/5: loss_epoch ")
+    assert last == first.replace("epoch 1/5", "epoch 5/5") + " (unchanged since epoch 1)"

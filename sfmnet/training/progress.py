@@ -44,12 +44,17 @@ class Bar(TQDMProgressBar):
 
 
 class EpochLines(LightningProgressBar):
-    """One line per finished epoch: ``<method> epoch 3/10: loss_epoch 0.0001451, error/matrix_relative 0.02134``."""
+    """One line per finished epoch: ``<method> epoch 3/10: loss_epoch 0.0001451, error/matrix_relative 0.02134``.
+
+    Epochs whose figures repeat the last line's (a fit that has converged) are not printed again; the last epoch is,
+    saying since when nothing changed: ``epoch 10/10: loss_epoch 0.07733 (unchanged since epoch 1)``.
+    """
 
     def __init__(self) -> None:
         super().__init__()
         self.enabled = True
         self.reported_epoch = -1
+        self.shown: tuple[str, int] | None = None
 
     def disable(self) -> None:
         self.enabled = False
@@ -60,15 +65,16 @@ class EpochLines(LightningProgressBar):
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         # A resumed fit reports from the epoch it resumes in.
         self.reported_epoch = trainer.current_epoch - 1
+        self.shown = None
 
     def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         # An epoch's metrics are complete only after every epoch-end hook: report it when the next one starts.
         self.report(trainer, pl_module, trainer.current_epoch - 1)
 
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self.report(trainer, pl_module, trainer.current_epoch - 1)
+        self.report(trainer, pl_module, trainer.current_epoch - 1, last=True)
 
-    def report(self, trainer: L.Trainer, pl_module: L.LightningModule, epoch: int) -> None:
+    def report(self, trainer: L.Trainer, pl_module: L.LightningModule, epoch: int, last: bool = False) -> None:
         if not self.enabled or epoch <= self.reported_epoch or epoch < 0:
             return
         self.reported_epoch = epoch
@@ -78,7 +84,13 @@ class EpochLines(LightningProgressBar):
         total = f"/{trainer.max_epochs}" if trainer.max_epochs and trainer.max_epochs > 0 else ""
         metrics = ", ".join(f"{key} {value:.4g}" if isinstance(value, float) else f"{key} {value}"
                             for key, value in epoch_metrics(shown_metrics(self.get_metrics(trainer, pl_module))).items())
-        log.info(f"{method}epoch {epoch + 1}{total}: {metrics}")
+        unchanged = self.shown is not None and self.shown[0] == metrics
+        if not unchanged:
+            self.shown = (metrics, epoch)
+        elif not last:
+            return
+        since = f" (unchanged since epoch {self.shown[1] + 1})" if unchanged else ""
+        log.info(f"{method}epoch {epoch + 1}{total}: {metrics}{since}")
 
 
 def each_with_progress(items: Sequence[Item], description: str, enabled: bool = True) -> Iterator[Item]:
