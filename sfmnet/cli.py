@@ -159,8 +159,14 @@ def refuse_bare_words(args: list[str]) -> None:
     """A word that is no ``key=value``, ``+key=value`` or ``~key`` (Hydra would answer with its usage and exit 1)."""
     if any(arg.startswith("-") and arg not in MULTIRUN_FLAGS for arg in args):
         return  # Hydra's own flags (--cfg job, --info, ...) take bare words as their values
-    for arg in args:
+    for before, arg in zip([None, *args], args):
         if arg not in MULTIRUN_FLAGS and "=" not in arg and not arg.startswith("~"):
+            if before is not None and "=" in before:
+                # The shell splits an unquoted value at its spaces: `data.path=my session.csv` arrives as two words.
+                raise SfmnetError(
+                    f"'{arg}' is not a setting; it follows {before}: a value holding spaces must be quoted whole, "
+                    f"e.g. '{before} {arg}'"
+                )
             raise SfmnetError(f"'{arg}' is not a setting: write key=value, e.g. experiment={arg} (python -m sfmnet train --help)")
 
 

@@ -53,10 +53,26 @@ def parse_override(item: str):
     try:
         return OverridesParser.create().parse_overrides([item])[0]
     except OverrideParseException:
-        raise SfmnetError(
-            f"Hydra cannot read {item}: outside quotes a value may not hold '=', brackets, parentheses, spaces, "
-            f"quotes or non-ASCII letters; quote it: {quoted(item)}"
-        ) from None
+        raise SfmnetError(f"Hydra cannot read {item}: {unreadable_value(item)}") from None
+
+
+def unreadable_value(item: str) -> str:
+    """Why Hydra's grammar refused ``key=value`` and what to do: a list or mapping left unfinished (a placeholder, a
+    bracket never closed), else the characters that need quotes."""
+    value = item.partition("=")[2]
+    if value.startswith(("[", "{")):
+        if "..." in value:
+            return "'...' stands for entries to write out in full (the README's examples use it): give every one"
+        for opening, closing in ("[]", "{}"):
+            if value.count(opening) != value.count(closing):
+                return (
+                    f"a '{opening}' is not closed by a '{closing}' (or the reverse): close every bracket, and quote the "
+                    "whole setting for the shell"
+                )
+    return (
+        "outside quotes a value may not hold '=', brackets, parentheses, spaces, quotes or non-ASCII letters; "
+        f"quote it: {quoted(item)}"
+    )
 
 
 def swept_values(override, item: str, options: list[str]) -> list[str]:

@@ -24,7 +24,7 @@ import pytest
 import torch
 
 from sfmnet.apply import apply_calibration
-from sfmnet.cli import config_dir
+from sfmnet.cli import config_dir, refuse_bare_words
 from sfmnet.config_check import check_overrides
 from sfmnet.readers.ft_printed_sensor import FtPrintedSensorDataModule
 from sfmnet.readers.row_file import RowFileDataModule
@@ -684,6 +684,18 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         overrides_of("data.load_columns=[Fₓ,Fᵧ]"), r"""quote it: 'data.load_columns=\["Fₓ","Fᵧ"\]'""",
     ),
     "'=' in an unquoted path": (overrides_of("data.path=/data/a=b.csv"), r"""quote it: 'data.path="/data/a=b.csv"'"""),
+    "a list never closed": (
+        overrides_of("data.load_columns=[fx,fy"), r"Hydra cannot read data.load_columns=\[fx,fy: a '\[' is not closed by a '\]'",
+    ),
+    "the README's placeholder left in": (
+        overrides_of("data.configurations={{1: {{mass: 1, centre_of_mass: [0, 0, 0.1]}}, 2: {{...}}}}"),
+        r"'\.\.\.' stands for entries to write out in full \(the README's examples use it\): give every one",
+    ),
+    "a path with a space, unquoted": (
+        lambda t: (lambda: refuse_bare_words(["experiment=calibrate_csv", "data.path=my", "session.csv"])),
+        r"'session.csv' is not a setting; it follows data.path=my: a value holding spaces must be quoted whole, "
+        r"e.g. 'data.path=my session.csv'",
+    ),
     "'[' in an unquoted path": (overrides_of("data.path=/data/a[1].csv"), r"""quote it: 'data.path="/data/a\[1\].csv"'"""),
     "'${' in a path": (
         overrides_of("experiment=calibrate_csv", "data.path=/data/a${{x}}.csv", "data.magnitude=1"),
