@@ -12,6 +12,7 @@ from omegaconf import OmegaConf
 
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.eval.diagnostics import calibration_diagnostics, held_pose_groups
+from sfmnet.eval.goodness_of_fit import within_group_noise
 from sfmnet.linalg.held_poses import MAX_CLUSTERED_ROWS, held_pose_clusters
 from sfmnet.models.shape_from_motion import ShapeFromMotion
 from sfmnet.readers.ft_printed_sensor import FtPrintedSensorDataModule
@@ -54,34 +55,35 @@ def test_held_poses_are_found_as_held(dims: int, channels: int):
     assert same_partition(held_pose_clusters(readings), true_poses(600))
 
 
-def test_poses_closer_than_the_gap_merge_and_none_splits():
-    """Twelve random poses on a circle: some lie within a few noise widths of another and are taken for one, which
-    only widens the scatter found within poses."""
-    merged = [merged_poses(held_pose_clusters(sensor_rows("poses", 600, 2, 5, 0.001, seed)), true_poses(600)) for seed in range(6)]
-    assert min(merged) >= 0 and 0 < sum(merged) <= 12, merged
+def test_poses_on_the_circle_some_close_are_found_and_none_splits():
+    """Twelve random poses on a circle, some within a few noise widths of another: at 0.1 % noise every one is found,
+    at 1 % a few pairs come out as one pose, which only widens the scatter found within poses; none is split."""
+    exact = [merged_poses(held_pose_clusters(sensor_rows("poses", 600, 2, 5, 0.001, seed)), true_poses(600)) for seed in range(6)]
+    assert exact == [0] * 6
+    noisy = [merged_poses(held_pose_clusters(sensor_rows("poses", 600, 2, 5, 0.01, seed)), true_poses(600)) for seed in range(6)]
+    assert min(noisy) >= 0 and sum(noisy) <= 12, noisy
 
 
-def test_a_quantised_sensor_at_rest_repeats_readings_and_its_poses_are_still_found():
-    """Integer counts with noise under one count: most rows of a pose are exactly alike, and the step from 0 to one
-    count is the converter's, not a gap between poses."""
-    readings = torch.round(300 * sensor_rows("poses", 600, 3, 8, 0.0005, seed=1))
-    assert same_partition(held_pose_clusters(readings), true_poses(600))
-
-
-def test_rows_past_the_sample_join_their_pose_and_a_stray_row_stays_alone():
+def test_rows_past_the_sample_join_their_pose_and_so_does_a_stray_row():
+    """Every row joins the pose it is nearest: a bumped row too, so the scatter within poses is never below the noise
+    the fit's residuals carry."""
     rows = 20 * MAX_CLUSTERED_ROWS
     readings = sensor_rows("poses", rows, 3, 8, 0.001, seed=2)
-    readings[rows // 2 + 7] += 0.5  # one bumped row, between the sampled ones
-    found = held_pose_clusters(readings)
-    truth = true_poses(rows)
-    stray = torch.zeros(rows, dtype=torch.bool)
-    stray[rows // 2 + 7] = True
-    assert same_partition(found[~stray], truth[~stray])
-    assert int((found == found[stray]).sum()) == 1
+    readings[rows // 2 + 7] += 0.05  # one bumped row, between the sampled ones
+    assert same_partition(held_pose_clusters(readings), true_poses(rows))
+
+
+def unknown_rows(readings: torch.Tensor) -> CalibrationRecording:
+    return CalibrationRecording(readings=readings, loads=torch.full((len(readings), 2), math.nan, dtype=torch.float64), magnitude=1.0)
 
 
 @pytest.mark.parametrize("law", ["uniform", "hemisphere", "band", "cone"])
 def test_a_continuous_sweep_shows_no_held_poses(law: str):
+    """On the sphere no piece of the tree is a pose. On the circle's ellipse of readings the sparse ends can part
+    pieces, and the band is two arcs far apart: those scatter like the signal, more than twice the noise (the fit's,
+    here the truth's), which held rows never do, and are turned away. Where the noise swamps the signal (the band's
+    arcs at 30 %) they pass, scattering more than the noise itself: a fit is judged against more than its noise, so
+    no check can fire that would not fire on the truth."""
     found = [
         held_pose_clusters(sensor_rows(law, rows, 3, channels, noise, seed))
         for rows in (30, 300, 3000)
@@ -90,15 +92,19 @@ def test_a_continuous_sweep_shows_no_held_poses(law: str):
         for seed in range(2)
     ]
     assert all(poses is None for poses in found)
-
-
-def test_the_lobes_of_a_sweep_are_not_taken_for_poses():
-    """The band on the circle is two arcs far apart: two clusters in the readings, but they scatter far more than
-    the noise, which held rows never do."""
-    readings = sensor_rows("band", 400, 2, 5, 0.01, seed=0)
-    assert held_pose_clusters(readings) is not None
-    recording = CalibrationRecording(readings=readings, loads=torch.full((400, 2), math.nan, dtype=torch.float64), magnitude=1.0)
-    assert held_pose_groups(recording, fit_noise=0.01) is None
+    circle = [
+        (readings, held_pose_groups(unknown_rows(readings), fit_noise=noise), noise)
+        for rows in (30, 300, 3000)
+        for channels in (2, 5)
+        for noise in (0.0, 1e-3, 0.02, 0.3)
+        for seed in range(2)
+        for readings in [sensor_rows(law, rows, 2, channels, noise, seed)]
+    ]
+    kept = [(within_group_noise(readings, groups), noise) for readings, groups, noise in circle if groups is not None]
+    assert all(within >= noise for within, noise in kept) and all(noise >= 0.3 for _, noise in kept), kept
+    if law in ("uniform", "band"):
+        # What the scatter test turned away.
+        assert any(held_pose_clusters(readings) is not None for readings, groups, _ in circle if groups is None)
 
 
 def printed_sensor_rows(rows_per_pose: int) -> CalibrationRecording:
@@ -131,8 +137,9 @@ def test_the_real_six_axis_sensor_logged_without_poses_is_not_trustworthy():
         model, recording, channels, loads, model.uncertainty(recording, loads), "N, N m"
     )
     assert not goodness.trustworthy
-    # 60 poses, less those of known load (3 a configuration, 15 in all, found as their own) and a pair that merges.
-    assert 55 <= metrics["goodness/held_poses_found"] <= 60
+    # 60 poses (those of known load kept apart by their load); a few rows of one join a pose close by, a known pose's
+    # rows so split count twice.
+    assert 55 <= metrics["goodness/held_poses_found"] <= 62
     assert metrics["goodness/noise_ratio"] > 10 and metrics["goodness/pose_misfit_ratio"] > 10
     assert any("as found in the readings" in w and "give data.group_column" in w for w in warnings), warnings
 
@@ -156,3 +163,25 @@ def test_a_linear_sensor_held_at_poses_without_a_pose_column_passes_with_its_noi
         assert metrics["goodness/held_poses_found"] >= 20
         ratios.append(metrics["goodness/noise_ratio"])
     assert 0.8 < min(ratios) and max(ratios) < 1.25, ratios
+
+
+def test_a_spike_joins_its_pose_and_raises_no_alarm():
+    """A hostile tester's case: one row 50x the noise off among 16 poses x 30 rows of a linear sensor. Standing alone, it
+    was left out of the noise within poses but not out of the fit's, and the run was disowned (noise ratio 3.5)."""
+    datamodule = ForceSensor3DataModule(
+        magnitude=9.81, channels=6, samples=480, known_loads=0, orientation_law="poses", poses=16,
+        noise_fraction=0.005, offset_scale=0.3, errors={"angle_error_deg": 0.0}, seed=5,
+    )
+    datamodule.setup()
+    recording = dataclasses.replace(datamodule.data.recordings["rotation"], groups=None)
+    noise = float((recording.readings[1:30] - recording.readings[1:30].mean(dim=0)).std())
+    readings = recording.readings.clone()
+    readings[100] += 50 * noise * torch.nn.functional.normalize(torch.ones(6, dtype=torch.float64), dim=0)
+    recording = dataclasses.replace(recording, readings=readings)
+    model = refined(ShapeFromMotion(), recording)
+    loads = model.fitted_loads(recording)
+    metrics, warnings, goodness = calibration_diagnostics(
+        model, recording, [f"c{i}" for i in range(6)], loads, model.uncertainty(recording, loads), "N"
+    )
+    assert metrics["goodness/held_poses_found"] == 16 and metrics["goodness/outliers"] >= 1
+    assert goodness.trustworthy, warnings
