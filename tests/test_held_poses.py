@@ -165,23 +165,58 @@ def test_a_linear_sensor_held_at_poses_without_a_pose_column_passes_with_its_noi
     assert 0.8 < min(ratios) and max(ratios) < 1.25, ratios
 
 
-def test_a_spike_joins_its_pose_and_raises_no_alarm():
-    """A hostile tester's case: one row 50x the noise off among 16 poses x 30 rows of a linear sensor. Standing alone, it
-    was left out of the noise within poses but not out of the fit's, and the run was disowned (noise ratio 3.5)."""
-    datamodule = ForceSensor3DataModule(
-        magnitude=9.81, channels=6, samples=480, known_loads=0, orientation_law="poses", poses=16,
-        noise_fraction=0.005, offset_scale=0.3, errors={"angle_error_deg": 0.0}, seed=5,
-    )
-    datamodule.setup()
-    recording = dataclasses.replace(datamodule.data.recordings["rotation"], groups=None)
-    noise = float((recording.readings[1:30] - recording.readings[1:30].mean(dim=0)).std())
-    readings = recording.readings.clone()
-    readings[100] += 50 * noise * torch.nn.functional.normalize(torch.ones(6, dtype=torch.float64), dim=0)
-    recording = dataclasses.replace(recording, readings=readings)
-    model = refined(ShapeFromMotion(), recording)
-    loads = model.fitted_loads(recording)
-    metrics, warnings, goodness = calibration_diagnostics(
-        model, recording, [f"c{i}" for i in range(6)], loads, model.uncertainty(recording, loads), "N"
-    )
-    assert metrics["goodness/held_poses_found"] == 16 and metrics["goodness/outliers"] >= 1
-    assert goodness.trustworthy, warnings
+def test_spikes_join_their_pose_and_raise_no_alarm():
+    """A hostile tester's case: two rows 30x the noise off among 24 poses x 20 rows of a linear 3-channel sensor.
+    Standing alone, they were left out of the noise within poses but not out of the fit's residuals, and the run was
+    disowned (noise ratio 1.56 and 1.84 in these two sessions)."""
+    for seed in (2, 3):
+        datamodule = ForceSensor3DataModule(
+            magnitude=9.81, channels=3, samples=480, known_loads=0, orientation_law="poses", poses=24,
+            noise_fraction=0.005, offset_scale=0.3, errors={"angle_error_deg": 0.0}, seed=seed,
+        )
+        datamodule.setup()
+        recording = dataclasses.replace(datamodule.data.recordings["rotation"], groups=None)
+        noise = float((recording.readings[1:20] - recording.readings[1:20].mean(dim=0)).std())
+        readings = recording.readings.clone()
+        generator = torch.Generator().manual_seed(seed)
+        for row in torch.randperm(480, generator=generator)[:2]:
+            readings[row] += 30 * noise * torch.nn.functional.normalize(torch.randn(3, generator=generator, dtype=torch.float64), dim=0)
+        recording = dataclasses.replace(recording, readings=readings)
+        model = refined(ShapeFromMotion(), recording)
+        loads = model.fitted_loads(recording)
+        metrics, warnings, goodness = calibration_diagnostics(
+            model, recording, ["c0", "c1", "c2"], loads, model.uncertainty(recording, loads), "N"
+        )
+        assert metrics["goodness/held_poses_found"] == 24 and goodness.trustworthy, (seed, warnings)
+
+
+def held_and_moving(seed: int, heavier: float) -> CalibrationRecording:
+    """20 poses x 30 rows of a 3-channel sensor (p = n), 8 rows logged on the way from each pose to the next (the mass
+    turning, its load still ``|F|``), noise 0.5 % of the signal; odd poses (and the way out of them) ``heavier``."""
+    generator = torch.Generator().manual_seed(seed)
+    poses = torch.nn.functional.normalize(torch.randn(20, 3, generator=generator, dtype=torch.float64), dim=1)
+    loads = []
+    for k in range(20):
+        mass = 9.81 * (1 + heavier * (k % 2))
+        loads.append(mass * poses[k].expand(30, 3))
+        if k < 19:
+            way = torch.linspace(0, 1, 10, dtype=torch.float64)[1:-1, None]
+            loads.append(mass * torch.nn.functional.normalize((1 - way) * poses[k] + way * poses[k + 1], dim=1))
+    loads = torch.cat(loads)
+    shape = torch.eye(3, dtype=torch.float64) + 0.1 * torch.randn(3, 3, generator=generator, dtype=torch.float64)
+    signal = loads @ shape
+    readings = signal + 0.3 + 0.005 * float(signal.std()) * torch.randn(signal.shape, generator=generator, dtype=torch.float64)
+    return CalibrationRecording(readings=readings, loads=torch.full_like(loads, math.nan), magnitude=9.81)
+
+
+def test_rows_logged_in_motion_between_poses_stand_alone_and_the_poses_are_judged():
+    """A hostile tester's case: rows between poses once joined the nearest pose, whose scatter then looked like a
+    sweep's, and a mass 3 % heavier on half the poses passed. Many rows beyond every pose's reach stand alone now."""
+    for heavier, trusted in ((0.0, True), (0.03, False)):
+        recording = held_and_moving(seed=1, heavier=heavier)
+        model = refined(ShapeFromMotion(), recording)
+        loads = model.fitted_loads(recording)
+        metrics, warnings, goodness = calibration_diagnostics(
+            model, recording, ["x", "y", "z"], loads, model.uncertainty(recording, loads), "m/s^2"
+        )
+        assert metrics["goodness/held_poses_found"] == 20 and goodness.trustworthy is trusted, (heavier, warnings)

@@ -20,6 +20,9 @@ MIN_POSE_ROWS = 5
 MIN_GAP = 4.0
 # At most this many rows (spread evenly over the recording) are clustered; the rest join the pose they are nearest.
 MAX_CLUSTERED_ROWS = 1000
+# Rows beyond every pose's reach join the nearest pose while they are at most this share of the rows: a few are
+# bumps, which the fit's residuals carry too; more are rows in motion between poses, which stand alone.
+MAX_JOINED_STRAYS = 0.01
 # Rows joined to the poses found this many at a time.
 ASSIGNED_CHUNK_ROWS = 16384
 
@@ -75,20 +78,21 @@ def held_pose_clusters(readings: torch.Tensor) -> torch.Tensor | None:
     (:data:`MIN_POSE_ROWS` - 1)-th nearest row; their median is the scale of the noise where rows were held. The
     sample's minimum spanning tree is cut at every edge longer than :data:`MIN_GAP` times that scale. Poses are the
     pieces of at least :data:`MIN_POSE_ROWS` rows; found when there are two or more and they hold at least half the
-    sample. Every row of the recording then joins the pose whose mean it is nearest.
+    sample. Every row of the recording then joins the pose whose mean it is nearest, unless it lies beyond that
+    pose's reach (its farthest sampled row from its mean, plus the cut's length) and such rows are more than
+    :data:`MAX_JOINED_STRAYS` of the recording: those are rows in motion between poses, and each stands alone.
 
     A continuous sweep over the sphere shows no such gap; over the circle, pieces that scatter like the signal
-    rather than the noise, which :func:`~sfmnet.eval.diagnostics.held_pose_groups` turns away. Every row joins a pose:
-    a spike, so that it counts in the scatter within poses as it does in the fit's residuals; rows in motion between
-    poses, which widen that scatter until the poses are turned away too. Two poses within a few noise widths may come
-    out as one. So the scatter within the poses found is not below the noise, and the checks that compare a fit
-    with it stay on the safe side.
+    rather than the noise, which :func:`~sfmnet.eval.diagnostics.held_pose_groups` turns away. A few spikes join
+    their pose, so that they count in the scatter within poses as they do in the fit's residuals, and two poses
+    within a few noise widths may come out as one. So the scatter within the poses found is not below the noise,
+    and the checks that compare a fit with it stay on the safe side.
 
     Args:
         readings: ``f x p`` raw readings (any units; the Euclidean distance between rows is what counts).
 
     Returns:
-        ``f`` (long) labels, poses ``0 .. K-1``; or None.
+        ``f`` (long) labels: poses ``0 .. K-1``, each row standing alone a label of its own; or None.
     """
     rows = len(readings)
     if rows < 2 * MIN_POSE_ROWS:
@@ -108,7 +112,22 @@ def held_pose_clusters(readings: torch.Tensor) -> torch.Tensor | None:
         return None
     in_pose = np.isin(component, poses)
     members = readings[sample[torch.from_numpy(in_pose)]]
-    return nearest_pose(readings, members, torch.from_numpy(np.searchsorted(poses, component[in_pose])))
+    member_pose = torch.from_numpy(np.searchsorted(poses, component[in_pose]))
+    means = pose_means(members, member_pose)
+    pose, distance = nearest_pose(readings, means)
+    reach = torch.zeros(len(means), dtype=readings.dtype).scatter_reduce_(
+        0, member_pose, (members - means[member_pose]).norm(dim=1), "amax"
+    ) + MIN_GAP * scale
+    stray = distance > reach[pose]
+    if int(stray.sum()) > MAX_JOINED_STRAYS * rows:
+        pose[stray] = len(means) + torch.nonzero(stray)[:, 0]
+    return pose
+
+
+def pose_means(members: torch.Tensor, member_pose: torch.Tensor) -> torch.Tensor:
+    """``K x p``: the mean of the ``members`` (``m x p``) of each pose, labelled ``member_pose`` (``m``, long)."""
+    count = torch.bincount(member_pose).to(members.dtype)
+    return torch.zeros(len(count), members.shape[1], dtype=members.dtype).index_add_(0, member_pose, members) / count[:, None]
 
 
 def positive_floor(values: torch.Tensor) -> float:
@@ -117,14 +136,12 @@ def positive_floor(values: torch.Tensor) -> float:
     return float(positive.min()) if len(positive) else 0.0
 
 
-def nearest_pose(readings: torch.Tensor, members: torch.Tensor, member_pose: torch.Tensor) -> torch.Tensor:
-    """``f`` (long): for each of ``readings`` (``f x p``), the pose (``0 .. K-1``) whose mean is nearest, the poses'
-    means taken over ``members`` (``m x p``) labelled ``member_pose`` (``m``, long)."""
-    count = torch.bincount(member_pose).to(readings.dtype)
-    means = torch.zeros(len(count), readings.shape[1], dtype=readings.dtype).index_add_(0, member_pose, members)
-    means = means / count[:, None]
+def nearest_pose(readings: torch.Tensor, means: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """For each of ``readings`` (``f x p``), the pose whose mean (``means``, ``K x p``) is nearest (``f``, long) and the
+    distance to it (``f``)."""
     # In chunks: a million rows' distances to a hundred poses would be 800 MB at once.
-    return torch.cat([
-        exact_distances(readings[start : start + ASSIGNED_CHUNK_ROWS], means).argmin(dim=1)
+    nearest = [
+        exact_distances(readings[start : start + ASSIGNED_CHUNK_ROWS], means).min(dim=1)
         for start in range(0, len(readings), ASSIGNED_CHUNK_ROWS)
-    ])
+    ]
+    return torch.cat([n.indices for n in nearest]), torch.cat([n.values for n in nearest])
