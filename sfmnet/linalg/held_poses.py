@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from sfmnet.linalg.group_means import group_means
+
 # A pose counts from this many rows: fewer say little about the noise.
 MIN_POSE_ROWS = 5
 # Edges of the tree longer than this many times the rows' median crowding (the distance from a row to its
@@ -113,7 +115,7 @@ def held_pose_clusters(readings: torch.Tensor) -> torch.Tensor | None:
     in_pose = np.isin(component, poses)
     members = readings[sample[torch.from_numpy(in_pose)]]
     member_pose = torch.from_numpy(np.searchsorted(poses, component[in_pose]))
-    means = pose_means(members, member_pose)
+    means = group_means(members, member_pose)[0]
     pose, distance = nearest_pose(readings, means)
     reach = torch.zeros(len(means), dtype=readings.dtype).scatter_reduce_(
         0, member_pose, (members - means[member_pose]).norm(dim=1), "amax"
@@ -122,12 +124,6 @@ def held_pose_clusters(readings: torch.Tensor) -> torch.Tensor | None:
     if int(stray.sum()) > MAX_JOINED_STRAYS * rows:
         pose[stray] = len(means) + torch.nonzero(stray)[:, 0]
     return pose
-
-
-def pose_means(members: torch.Tensor, member_pose: torch.Tensor) -> torch.Tensor:
-    """``K x p``: the mean of the ``members`` (``m x p``) of each pose, labelled ``member_pose`` (``m``, long)."""
-    count = torch.bincount(member_pose).to(members.dtype)
-    return torch.zeros(len(count), members.shape[1], dtype=members.dtype).index_add_(0, member_pose, members) / count[:, None]
 
 
 def positive_floor(values: torch.Tensor) -> float:
