@@ -31,7 +31,13 @@ rerun. So the 50-session table (hours) can be built over several runs, each taki
 
     python bench/crb_ratio.py --laws --trials 50 --record runs/bench/laws50.jsonl --only 2:no:band:2 ...
 
-``--samples`` runs sessions of that many rows instead: a bias that does not shrink with rows (README, "Beyond the
+``--from-record`` runs nothing: it prints every row the record holds for these options on any code, the latest of
+each, with the digest of the code that measured it in a last column (the README's one table of all rows, measured
+over many runs and commits):
+
+    python bench/crb_ratio.py --laws --trials 50 --record runs/bench/laws50.jsonl --from-record
+
+``--samples`` runs sessions of that many rows instead: a bias that does not shrink with rows (docs/crb_bench.md, "Beyond the
 table's 96-200 rows") hides under the variance of the table's small sessions.
 
 ``--p-equals-n`` simulates sensors with as many channels as axes (a 2-gauge fingertip, a 3-channel force sensor: the
@@ -64,6 +70,7 @@ estimator of the table's 96-200 rows can be below it, as a smoothed law is at SN
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import hashlib
 import inspect
@@ -414,37 +421,39 @@ def code_digest() -> str:
     return digest.hexdigest()
 
 
-def recorded_rows(record: Path | None, key: dict) -> dict[str, list[float]]:
-    """The rows ``record`` holds measured under ``key`` (the code's digest and the options): row name to its sums."""
+def recorded_rows(record: Path | None, key: dict, any_code: bool = False) -> dict[str, tuple[list[float], str]]:
+    """The rows ``record`` holds measured under ``key`` (the code's digest and the options): row name to its sums and
+    the digest of the code that measured it, the latest entry of each row (``any_code``: whatever the digest)."""
     if record is None or not record.exists():
         return {}
     rows = {}
     for line in record.read_text().splitlines():
         entry = json.loads(line)
-        if entry["key"] == key:
-            rows[entry["row"]] = entry["sums"]
+        code = entry["key"]["code"]
+        if entry["key"] == (key | {"code": code} if any_code else key):
+            rows[entry["row"]] = entry["sums"], code
     return rows
 
 
 def law_table(
     trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool, true_law: bool,
-    samples: int | None = None, p_equals_n: bool = False, record: Path | None = None,
+    samples: int | None = None, p_equals_n: bool = False, record: Path | None = None, from_record: bool = False,
 ) -> None:
     """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``;
-    ``record``: see ``--record``)."""
+    ``record``: see ``--record``; ``from_record``: the record's rows on any code, nothing run, see ``--from-record``)."""
     import multiprocessing
 
     key = {
         "code": code_digest(), "trials": trials, "learnt_law": learnt_law, "tie": tie, "true_law": true_law,
         "samples": samples, "p_equals_n": p_equals_n, "optimizer": OmegaConf.to_container(optimizer_cfg),
     }
-    done = recorded_rows(record, key)
+    done = recorded_rows(record, key, any_code=from_record)
 
     columns = ["closed form", "alternation", "marginal", *(["marginal, true law"] if true_law else []), "auto"]
     print("| n | offsets | law | SNR | " + " | ".join(f"{c} / CRB" for c in columns)
-          + " | auto 68 % coverage | trusted | coverage of trusted bars |")
-    print("|---|---|---|---|" + "---|" * (len(columns) + 3))
-    with multiprocessing.get_context("spawn").Pool(processes) as pool:
+          + " | auto 68 % coverage | trusted | coverage of trusted bars |" + (" code |" if from_record else ""))
+    print("|---|---|---|---|" + "---|" * (len(columns) + 3 + from_record))
+    with contextlib.nullcontext() if from_record else multiprocessing.get_context("spawn").Pool(processes) as pool:
         for n in (2, 3):
             for offsets in (False, True):
                 for law in LAWS:
@@ -452,8 +461,11 @@ def law_table(
                         row = row_name(n, offsets, law, snr)
                         if only and row not in only:
                             continue
+                        code = ""
                         if row in done:
-                            sums = torch.tensor(done[row])
+                            sums, code = torch.tensor(done[row][0]), f" {done[row][1]} |"
+                        elif from_record:
+                            continue
                         else:
                             jobs = [
                                 (n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n)
@@ -474,7 +486,7 @@ def law_table(
                         trusted_coverage = f"{float(trusted_within / trusted_entries):.2f}" if trusted > 0 else "-"
                         print(
                             f"| {n} | {'yes' if offsets else 'no'} | {law} | {snr:g} | {ratios} | {coverage:.2f} | "
-                            f"{float(trusted) / trials:.1f} | {trusted_coverage} |",
+                            f"{float(trusted) / trials:.2f} | {trusted_coverage} |" + (code if from_record else ""),
                             flush=True,
                         )
 
@@ -496,7 +508,10 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=None, help="--laws: rows per session instead of 96 (n = 2) and 200 (n = 3)")
     parser.add_argument("--p-equals-n", action="store_true", help="--laws: as many channels as axes (see above)")
     parser.add_argument("--record", type=Path, default=None, help="--laws: JSON-lines file of finished rows (see above)")
+    parser.add_argument("--from-record", action="store_true", help="--laws --record: print the record's rows on any code, run nothing (see above)")
     args = parser.parse_args()
+    if args.from_record and not (args.laws and args.record):
+        parser.error("--from-record prints the --laws table from a --record file: give both")
     warnings.filterwarnings("ignore")
     import logging
 
@@ -506,7 +521,7 @@ def main() -> None:
     if args.laws:
         law_table(
             args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied, args.true_law,
-            args.samples, args.p_equals_n, args.record,
+            args.samples, args.p_equals_n, args.record, args.from_record,
         )
         return
     if args.law_bounds:

@@ -536,7 +536,7 @@ def goodness_of_fit(
             warnings.append(
                 f"the marginal refinement and the alternation fitted to the same rows differ by {refinement_disagreement:.1f}x "
                 "the error bars, so at least one of them is wrong beyond its bars (with offsets on part of the sphere "
-                "either can be: README, 'Beyond the table's 96-200 rows'); compare model.refinement=alternation, turn "
+                "either can be: docs/crb_bench.md, 'Beyond the table's 96-200 rows'); compare model.refinement=alternation, turn "
                 "the mass through more of the sphere, or give known loads"
             )
     count = int(outliers.sum())
