@@ -26,8 +26,9 @@ those bars alone (what a user is told to believe). Trials run in ``--processes``
     python bench/crb_ratio.py --laws --trials 50 --processes 2 [--learnt-law harmonic] [--only 3:yes:band:20 ...]
 
 ``--record FILE`` appends each finished row's sums to ``FILE`` (JSON lines) with a digest of the code that measured
-it (``sfmnet/``, ``conf/`` and this file); a row already there for the same code and options is printed from it, not
-rerun. So the 50-session table (hours) can be built over several runs, each taking some rows with ``--only``:
+it (``sfmnet/``, ``conf/`` and this file) and each session's figures in seed order (``sessions``: what
+:func:`law_trial` returns, so a session the sums hide, such as a trusted one whose bars miss, can be found and rerun);
+a row already there for the same code and options is printed from it, not rerun. So the 50-session table (hours) can be built over several runs, each taking some rows with ``--only``:
 
     python bench/crb_ratio.py --laws --trials 50 --record runs/bench/laws50.jsonl --only 2:no:band:2 ...
 
@@ -471,11 +472,13 @@ def law_table(
                                 (n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n)
                                 for seed in range(trials)
                             ]
-                            sums = torch.tensor(pool.map(law_trial, jobs)).sum(dim=0)
+                            sessions = pool.map(law_trial, jobs)
+                            sums = torch.tensor(sessions).sum(dim=0)
                             if record is not None:
                                 record.parent.mkdir(parents=True, exist_ok=True)
+                                entry = {"key": key, "row": row, "sums": sums.tolist(), "sessions": sessions}
                                 with record.open("a") as file:
-                                    file.write(json.dumps({"key": key, "row": row, "sums": sums.tolist()}) + "\n")
+                                    file.write(json.dumps(entry) + "\n")
                         *errors, bound, within, entries, trusted, trusted_within, trusted_entries = sums
                         # The true law's column has no figure on poses; a NaN elsewhere is a failed fit and shows as one.
                         cells = [f"{float((e / bound).sqrt()):.2f}" for e in errors]
