@@ -28,7 +28,8 @@ those bars alone (what a user is told to believe). Trials run in ``--processes``
 ``--record FILE`` appends each finished row's sums to ``FILE`` (JSON lines) with a digest of the code that measured
 it (``sfmnet/``, ``conf/`` and this file) and each session's figures in seed order (``sessions``: what
 :func:`law_trial` returns, so a session the sums hide, such as a trusted one whose bars miss, can be found and rerun);
-a row already there for the same code and options is printed from it, not rerun. So the 50-session table (hours) can be built over several runs, each taking some rows with ``--only``:
+a row already there for the same code and options is printed from it, not rerun. So the 50-session table (hours)
+can be built over several runs, each taking some rows with ``--only``:
 
     python bench/crb_ratio.py --laws --trials 50 --record runs/bench/laws50.jsonl --only 2:no:band:2 ...
 
