@@ -463,9 +463,8 @@ def law_table(
                         row = row_name(n, offsets, law, snr)
                         if only and row not in only:
                             continue
-                        code = ""
                         if row in done:
-                            sums, code = torch.tensor(done[row][0]), f" {done[row][1]} |"
+                            sums = torch.tensor(done[row][0])
                         elif from_record:
                             continue
                         else:
@@ -490,7 +489,7 @@ def law_table(
                         trusted_coverage = f"{float(trusted_within / trusted_entries):.2f}" if trusted > 0 else "-"
                         print(
                             f"| {n} | {'yes' if offsets else 'no'} | {law} | {snr:g} | {ratios} | {coverage:.2f} | "
-                            f"{float(trusted) / trials:.2f} | {trusted_coverage} |" + (code if from_record else ""),
+                            f"{float(trusted) / trials:.2f} | {trusted_coverage} |" + (f" {done[row][1]} |" if from_record else ""),
                             flush=True,
                         )
 

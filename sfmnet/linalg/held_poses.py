@@ -116,11 +116,11 @@ def held_pose_clusters(readings: torch.Tensor) -> torch.Tensor | None:
     members = readings[sample[torch.from_numpy(in_pose)]]
     member_pose = torch.from_numpy(np.searchsorted(poses, component[in_pose]))
     means = group_means(members, member_pose)[0]
-    pose, distance = nearest_pose(readings, means)
+    pose, from_mean = nearest_pose(readings, means)
     reach = torch.zeros(len(means), dtype=readings.dtype).scatter_reduce_(
         0, member_pose, (members - means[member_pose]).norm(dim=1), "amax"
     ) + MIN_GAP * scale
-    stray = distance > reach[pose]
+    stray = from_mean > reach[pose]
     if int(stray.sum()) > MAX_JOINED_STRAYS * rows:
         pose[stray] = len(means) + torch.nonzero(stray)[:, 0]
     return pose
