@@ -26,10 +26,10 @@ those bars alone (what a user is told to believe). Trials run in ``--processes``
     python bench/crb_ratio.py --laws --trials 50 --processes 2 [--learnt-law harmonic] [--only 3:yes:band:20 ...]
 
 ``--record FILE`` appends each finished row's sums to ``FILE`` (JSON lines) with a digest of the code that measured
-it (``sfmnet/``, ``conf/`` and this file) and each session's figures in seed order (``sessions``: what
-:func:`law_trial` returns, so a session the sums hide, such as a trusted one whose bars miss, can be found and rerun);
-a row already there for the same code and options is printed from it, not rerun. So the 50-session table (hours)
-can be built over several runs, each taking some rows with ``--only``:
+it (``sfmnet/``, ``conf/`` and this file), each session's terms of the sums in seed order (``sessions``) and what each
+session's run reported (``details``, see ``--sessions``), so a session the sums hide, such as a trusted one whose bars
+miss, can be found and rerun. A row already there for the same code and options is printed from it, not rerun. So the
+50-session table (hours) can be built over several runs, each taking some rows with ``--only``:
 
     python bench/crb_ratio.py --laws --trials 50 --record runs/bench/laws50.jsonl --only 2:no:band:2 ...
 
@@ -38,6 +38,14 @@ each, with the digest of the code that measured it in a last column (the README'
 over many runs and commits):
 
     python bench/crb_ratio.py --laws --trials 50 --record runs/bench/laws50.jsonl --from-record
+
+``--sessions`` prints a second table after it, a line per session of every row shown (run now, or recorded with
+``details``): the refinement auto took and the law it learnt, its bars and its error (``|matrix_std|_F / |C|_F`` and
+``|C_fit - C|_F / |C|_F``, the limit :data:`~sfmnet.eval.goodness_of_fit.MAX_RELATIVE_MATRIX_STD_LEARNT_LAW` is set on
+the first), the bars' coverage, the RMS of error over bars, whether the run trusts its bars and the first warning that
+says why not. So a limit can be drawn on the sessions it would move:
+
+    python bench/crb_ratio.py --laws --trials 50 --record runs/bench/laws50.jsonl --sessions --only 3:yes:cone:20
 
 ``--samples`` runs sessions of that many rows instead: a bias that does not shrink with rows (docs/crb_bench.md, "Beyond the
 table's 96-200 rows") hides under the variance of the table's small sessions.
@@ -80,6 +88,7 @@ import json
 import math
 import warnings
 from pathlib import Path
+from typing import NamedTuple
 
 import lightning as L
 import torch
@@ -92,7 +101,7 @@ from sfmnet.simulators.simulation import circle_arc, oriented_directions, sphere
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.linalg.directions import direction_grid
 from sfmnet.linalg.frame import orthogonal_procrustes, skew_generators
-from sfmnet.linalg.uncertainty import GAUGE_RTOL, shape_information
+from sfmnet.linalg.uncertainty import GAUGE_RTOL, relative_matrix_std, shape_information
 from sfmnet.models.shape_from_motion import LEARNT_LAWS, ShapeFromMotion
 from sfmnet.training.fitting import refine_in_process
 from sfmnet.training.learner_module import LearnerModule
@@ -369,10 +378,10 @@ class TrueLawMarginal(ShapeFromMotion):
         """The law is known: nothing to learn."""
 
 
-def law_trial(args: tuple) -> tuple[float, ...]:
+def law_trial(args: tuple) -> tuple[tuple[float, ...], dict]:
     """Squared shape errors of the closed form, alternation, marginal, (with ``true_law``) the marginal given the true
     law (NaN on ``poses``) and auto, the bound, auto's coverage counts, and whether its bars are trusted (with those counts
-    again where they are)."""
+    again where they are); and what auto's run reported (``--sessions``)."""
     n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n = args
     torch.set_num_threads(1)
     warnings.filterwarnings("ignore")
@@ -395,13 +404,21 @@ def law_trial(args: tuple) -> tuple[float, ...]:
     loads = auto.fitted_loads(recording)
     uncertainty = auto.uncertainty(recording, loads)
     bars = uncertainty.matrix_std
+    matrix = auto.calibration_matrix()
     # The bars are in the fit's own frame, so the truth is turned into it (C = pinv(S)^T turns as S does);
     # turning the fit instead mixes the rows of C, whose bars differ.
-    within = ((auto.calibration_matrix() - alignment.T @ datamodule.data.truth.matrix).abs() < bars).sum()
+    misses = matrix - alignment.T @ datamodule.data.truth.matrix
+    within = (misses.abs() < bars).sum()
     # Whether a calibration run would call these bars trustworthy (every goodness-of-fit check passed, the fit sound).
     channels = [f"c{i}" for i in range(recording.readings.shape[1])]
     _, _, goodness = calibration_diagnostics(auto, recording, channels, loads, uncertainty, "N")
     trusted = float(goodness.trustworthy and not auto.fit_failed)
+    details = {
+        "seed": seed, "refinement": chooser.refinement, "laws_learnt": list(auto.law_learnt),
+        "relative_bars": relative_matrix_std(bars, matrix), "relative_error": float(misses.norm() / matrix.norm()),
+        "coverage": float(within) / bars.numel(), "error_over_bars": float((misses / bars).pow(2).mean().sqrt()),
+        "trusted": bool(trusted), "warnings": [*auto.fit_warnings, *goodness.warnings],
+    }
     errors = [error2(model.physical_shape(), truth, align=True) for model in fitted.values()]
     if true_law:
         known = float("nan")
@@ -410,7 +427,8 @@ def law_trial(args: tuple) -> tuple[float, ...]:
             known = error2(model.physical_shape(), truth, align=True)
         errors.append(known)
     auto_error = errors[list(fitted).index(chooser.refinement)]
-    return closed_form, *errors, auto_error, bound, float(within), float(bars.numel()), trusted, trusted * float(within), trusted * float(bars.numel())
+    sums = closed_form, *errors, auto_error, bound, float(within), float(bars.numel()), trusted, trusted * float(within), trusted * float(bars.numel())
+    return sums, details
 
 
 def code_digest() -> str:
@@ -423,9 +441,18 @@ def code_digest() -> str:
     return digest.hexdigest()
 
 
-def recorded_rows(record: Path | None, key: dict, any_code: bool = False) -> dict[str, tuple[list[float], str]]:
-    """The rows ``record`` holds measured under ``key`` (the code's digest and the options): row name to its sums and
-    the digest of the code that measured it, the latest entry of each row (``any_code``: whatever the digest)."""
+class RecordedRow(NamedTuple):
+    """A row of ``--record``: its sums over sessions, the digest of the code that measured it and what each session's
+    run reported (``details``, None where the record predates them)."""
+
+    sums: list[float]
+    code: str
+    details: list[dict] | None
+
+
+def recorded_rows(record: Path | None, key: dict, any_code: bool = False) -> dict[str, RecordedRow]:
+    """The rows ``record`` holds measured under ``key`` (the code's digest and the options), by name, the latest entry
+    of each row (``any_code``: whatever the digest)."""
     if record is None or not record.exists():
         return {}
     rows = {}
@@ -433,16 +460,18 @@ def recorded_rows(record: Path | None, key: dict, any_code: bool = False) -> dic
         entry = json.loads(line)
         code = entry["key"]["code"]
         if entry["key"] == (key | {"code": code} if any_code else key):
-            rows[entry["row"]] = entry["sums"], code
+            rows[entry["row"]] = RecordedRow(entry["sums"], code, entry.get("details"))
     return rows
 
 
 def law_table(
     trials: int, snrs: list[float], processes: int, optimizer_cfg, learnt_law: str, only: list[str], tie: bool, true_law: bool,
     samples: int | None = None, p_equals_n: bool = False, record: Path | None = None, from_record: bool = False,
+    sessions: bool = False,
 ) -> None:
     """Print the ``--laws`` table as Markdown, one row at a time (``only``: rows named ``n:offsets:law:snr``, e.g. ``3:yes:band:20``;
-    ``record``: see ``--record``; ``from_record``: the record's rows on any code, nothing run, see ``--from-record``)."""
+    ``record``: see ``--record``; ``from_record``: the record's rows on any code, nothing run, see ``--from-record``;
+    ``sessions``: then the sessions' table, see ``--sessions``)."""
     import multiprocessing
 
     key = {
@@ -455,6 +484,7 @@ def law_table(
     print("| n | offsets | law | SNR | " + " | ".join(f"{c} / CRB" for c in columns)
           + " | auto 68 % coverage | trusted | coverage of trusted bars |" + (" code |" if from_record else ""))
     print("|---|---|---|---|" + "---|" * (len(columns) + 3 + from_record))
+    shown: dict[str, list[dict] | None] = {}
     with contextlib.nullcontext() if from_record else multiprocessing.get_context("spawn").Pool(processes) as pool:
         for n in (2, 3):
             for offsets in (False, True):
@@ -464,7 +494,8 @@ def law_table(
                         if only and row not in only:
                             continue
                         if row in done:
-                            sums = torch.tensor(done[row][0])
+                            sums = torch.tensor(done[row].sums)
+                            shown[row] = done[row].details
                         elif from_record:
                             continue
                         else:
@@ -472,11 +503,13 @@ def law_table(
                                 (n, law, snr, offsets, seed, optimizer_cfg, learnt_law, tie, true_law, samples, p_equals_n)
                                 for seed in range(trials)
                             ]
-                            sessions = pool.map(law_trial, jobs)
-                            sums = torch.tensor(sessions).sum(dim=0)
+                            figures, details = zip(*pool.map(law_trial, jobs))
+                            sums, shown[row] = torch.tensor(figures).sum(dim=0), list(details)
                             if record is not None:
                                 record.parent.mkdir(parents=True, exist_ok=True)
-                                entry = {"key": key, "row": row, "sums": sums.tolist(), "sessions": sessions}
+                                entry = {
+                                    "key": key, "row": row, "sums": sums.tolist(), "sessions": figures, "details": shown[row]
+                                }
                                 with record.open("a") as file:
                                     file.write(json.dumps(entry) + "\n")
                         *errors, bound, within, entries, trusted, trusted_within, trusted_entries = sums
@@ -489,9 +522,28 @@ def law_table(
                         trusted_coverage = f"{float(trusted_within / trusted_entries):.2f}" if trusted > 0 else "-"
                         print(
                             f"| {n} | {'yes' if offsets else 'no'} | {law} | {snr:g} | {ratios} | {coverage:.2f} | "
-                            f"{float(trusted) / trials:.2f} | {trusted_coverage} |" + (f" {done[row][1]} |" if from_record else ""),
+                            f"{float(trusted) / trials:.2f} | {trusted_coverage} |" + (f" {done[row].code} |" if from_record else ""),
                             flush=True,
                         )
+    if sessions:
+        print_sessions(shown)
+
+
+def print_sessions(shown: dict[str, list[dict] | None]) -> None:
+    """The ``--sessions`` table: a line per session of each row in ``shown`` (row name to its sessions' details)."""
+    print("\n| row | seed | auto took | law learnt | bars % | error % | coverage | error / bars | trusted | first warning |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for row, details in shown.items():
+        for d in details or []:
+            warning = d["warnings"][0][:60] + "..." if d["warnings"] else ""
+            print(
+                f"| {row} | {d['seed']} | {d['refinement']} | {', '.join(d['laws_learnt']) or '-'} | "
+                f"{100 * d['relative_bars']:.1f} | {100 * d['relative_error']:.1f} | {d['coverage']:.2f} | "
+                f"{d['error_over_bars']:.2f} | {'yes' if d['trusted'] else 'no'} | {warning} |"
+            )
+    bare = [row for row, details in shown.items() if details is None]
+    if bare:
+        print(f"\nRecorded without per-session details (run them again to see them): {' '.join(bare)}")
 
 
 def main() -> None:
@@ -512,6 +564,7 @@ def main() -> None:
     parser.add_argument("--p-equals-n", action="store_true", help="--laws: as many channels as axes (see above)")
     parser.add_argument("--record", type=Path, default=None, help="--laws: JSON-lines file of finished rows (see above)")
     parser.add_argument("--from-record", action="store_true", help="--laws --record: print the record's rows on any code, run nothing (see above)")
+    parser.add_argument("--sessions", action="store_true", help="--laws: then a line per session of each row shown (see above)")
     args = parser.parse_args()
     if args.from_record and not (args.laws and args.record):
         parser.error("--from-record prints the --laws table from a --record file: give both")
@@ -524,7 +577,7 @@ def main() -> None:
     if args.laws:
         law_table(
             args.trials, args.snr, args.processes, optimizer_cfg, args.learnt_law, args.only, not args.untied, args.true_law,
-            args.samples, args.p_equals_n, args.record, args.from_record,
+            args.samples, args.p_equals_n, args.record, args.from_record, args.sessions,
         )
         return
     if args.law_bounds:
