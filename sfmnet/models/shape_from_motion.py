@@ -26,6 +26,7 @@ from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.least_squares import least_squares_shape
 from sfmnet.linalg.orientation_law import LAW_DEGREES, fit_orientation_law, harmonic_basis, held_out_log_likelihood
 from sfmnet.linalg.motion import constrained_motion, unit_motion
+from sfmnet.linalg.osculating_valley import valley_scan
 from sfmnet.models.linear_calibrator import (
     Batch,
     LinearCalibrator,
@@ -99,12 +100,14 @@ HELD_OUT_EM_STEPS = 300
 HELD_OUT_WIDTH_PER_SPACING = 0.5
 # The widest spacing (radians) of the marginal's direction grid.
 MARGINAL_GRID_SPACING = 0.11
-# With tied directions the marginal learns its law from one mean per pose, so the law becomes a spike per pose on
-# the grid, and each pose is snapped to a grid point unless its direction's spread (1 / direction SNR, radians)
-# reaches this many grid spacings: "auto" takes the alternation (whose bias then goes with the few poses, not the
-# many rows) above that. Measured on the 12 poses x 17 samples of bench/crb_ratio.py --laws, 3 axes: at direction
-# SNR 20.6 (spread 2.8 degrees, spacing 4.5) the tied marginal was 1.28x the bound and the tied alternation 0.97x.
-TIED_SPREAD_PER_SPACING = 1.0
+# Where one direction's spread (1 / direction SNR, radians) is under this many spacings of the marginal's grid, the
+# grid does not resolve a direction: a law learnt on it is a spike per direction (a pose's, tied; a row's, untied),
+# which holds each direction where the closed form put it, and "auto" takes the alternation instead (choose_refinement).
+# Measured on bench/crb_ratio.py --laws, 3 axes: on the 12 poses x 17 samples at direction SNR 20.6 (spread 2.8 degrees,
+# spacing 4.5) the tied marginal was 1.28x the bound and the tied alternation 0.97x; untied, at SNR 20 (50 sessions)
+# the sphere's band 1.12x and 1.17x (tared, with offsets) against 0.99x and 0.98x, its hemisphere with offsets 1.11x
+# against 1.02x.
+RESOLVED_SPREAD_PER_SPACING = 1.0
 
 
 def grid_spacing(dims: int, count: int) -> float:
@@ -294,6 +297,11 @@ class ShapeFromMotion(LinearCalibrator):
         where it ran away. It costs a few closed-form rounds, little beside the marginal's."""
         if self.refinement != "marginal" or self.direction_snr < ALTERNATION_BIASED_BELOW_SNR:
             return None
+        beside = self.alternation_fit(recording)
+        return None if beside.fit_failed else beside
+
+    def alternation_fit(self, recording: CalibrationRecording) -> ShapeFromMotion:
+        """The alternation with this model's options fitted to ``recording``: :data:`ALTERNATION_BESIDE_STEPS` steps."""
         beside = ShapeFromMotion(
             rank=self.rank, metric_weight=self.metric_weight, estimate_offset=self.estimate_offset,
             refinement="alternation", alternation_steps=self.alternation_steps, tie_directions=self.tie_directions,
@@ -302,7 +310,7 @@ class ShapeFromMotion(LinearCalibrator):
         batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
         for _ in range(ALTERNATION_BESIDE_STEPS):
             beside.alternate(batch)
-        return None if beside.fit_failed else beside
+        return beside
 
     def estimator_description(self) -> dict[str, Any]:
         """The refinement that ran (``auto``'s choice), the SNR it was chosen by, whether the directions were tied
@@ -348,20 +356,39 @@ class ShapeFromMotion(LinearCalibrator):
             noise, rms = self.closed_form_noise(recording)
             self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
         if self.refinement == "auto":
-            marginal = self.constrained and self.direction_snr < self.marginal_below_snr() and not self.robust
-            rows = round(len(recording.readings) / self.rows_per_direction)
-            if marginal and rows * self.grid_size(self.direction_maps.shape[1]) > MARGINAL_MAX_CELLS:
-                marginal = False
-                self.notes.append(
-                    f"SNR {self.direction_snr:.0f} is low enough for the marginal refinement, but on {rows:,} "
-                    f"{'poses' if self.tied else 'rows'} it would take "
-                    "long: the alternation was used, whose bias grows as 1/SNR^2; set model.refinement=marginal to "
-                    "insist, or fit pose means"
-                )
-            self.refinement = "marginal" if marginal else "alternation"
+            self.refinement = self.choose_refinement(recording, rms) if self.constrained else "alternation"
         if self.refinement == "marginal":
             # The marginal learns its noise; it starts where the README's tables were measured from, the residuals' RMS.
             self.start_marginal(rms)
+
+    def choose_refinement(self, recording: CalibrationRecording, rms: float) -> str:
+        """``auto``'s refinement, from the closed form (method §5, "Which refinement auto takes").
+
+        The marginal below :data:`MARGINAL_BELOW_SNR` (direction SNR), the alternation above. Where one direction's
+        spread is under the marginal grid's spacing (:meth:`grid_resolves_direction`), a law learnt on the grid holds
+        each direction where the closed form put it and the marginal hardly moves from there: tied, the alternation;
+        untied on one mass, the marginal only where it has no law to learn, the closed form's directions' law being
+        uniform (:meth:`law_at_start`), or the alternation cannot be used: its fit lies on an osculating valley
+        (:meth:`alternation_on_valley`), or the readings have no channel off the load space
+        (:meth:`readings_in_load_space`); with several mass configurations (six axes, not measured there) the marginal.
+        """
+        marginal = self.direction_snr < MARGINAL_BELOW_SNR and not self.robust
+        rows = round(len(recording.readings) / self.rows_per_direction)
+        if marginal and rows * self.grid_size(self.direction_maps.shape[1]) > MARGINAL_MAX_CELLS:
+            self.notes.append(
+                f"SNR {self.direction_snr:.0f} is low enough for the marginal refinement, but on {rows:,} "
+                f"{'poses' if self.tied else 'rows'} it would take "
+                "long: the alternation was used, whose bias grows as 1/SNR^2; set model.refinement=marginal to "
+                "insist, or fit pose means"
+            )
+            return "alternation"
+        if not marginal or self.grid_resolves_direction():
+            return "marginal" if marginal else "alternation"
+        if self.tied:
+            return "alternation"
+        if len(self.direction_maps) > 1 or self.readings_in_load_space(recording) or self.law_at_start(recording, rms) == "uniform" or self.alternation_on_valley(recording):
+            return "marginal"
+        return "alternation"
 
     def tie_poses(self, recording: CalibrationRecording) -> None:
         """Each row's pose (:attr:`row_pose`) where the directions are tied, and the unknown rows per direction
@@ -394,13 +421,53 @@ class ShapeFromMotion(LinearCalibrator):
     def tied(self) -> bool:
         return self.row_pose is not None
 
-    def marginal_below_snr(self) -> float:
-        """The direction SNR below which ``auto`` takes the marginal: :data:`MARGINAL_BELOW_SNR`, and with tied
-        directions no more than one direction's spread per grid spacing (:data:`TIED_SPREAD_PER_SPACING`)."""
-        if not self.tied:
-            return MARGINAL_BELOW_SNR
+    def grid_resolves_direction(self) -> bool:
+        """Whether one direction's spread (``1 / direction SNR`` radians) reaches :data:`RESOLVED_SPREAD_PER_SPACING`
+        of the marginal grid's spacing (:func:`grid_spacing`): on the default grids, below direction SNR 81 on the
+        circle (never past :data:`MARGINAL_BELOW_SNR`) and 12.6 on the sphere."""
         d = self.direction_maps.shape[1]
-        return min(MARGINAL_BELOW_SNR, 1 / (TIED_SPREAD_PER_SPACING * grid_spacing(d, self.grid_size(d))))
+        return 1 / self.direction_snr >= RESOLVED_SPREAD_PER_SPACING * grid_spacing(d, self.grid_size(d))
+
+    def readings_in_load_space(self, recording: CalibrationRecording) -> bool:
+        """As many channels as axes (``p = n``: an accelerometer, a magnetometer): no reading lies off the load space, so
+        each row's fitted direction takes up all of its noise but the radial part, and the alternation's bias is far
+        beyond its bars (bench/crb_ratio.py --laws --p-equals-n, 3 axes at SNR 20: 5-47x the bound on the sphere, the
+        hemisphere and the band, where the marginal is at it)."""
+        return recording.readings.shape[1] <= self.rank
+
+    @torch.no_grad()
+    def law_at_start(self, recording: CalibrationRecording, rms: float) -> str:
+        """The law of directions ``learnt_law`` takes at the closed form (:meth:`update_law` once, the marginal set up
+        from ``rms``): ``"uniform"`` where the held-out choice finds nothing the uniform law does not predict."""
+        self.start_marginal(rms)
+        self.update_law((torch.arange(len(recording.readings)), recording.readings, recording.loads))
+        law = self.law_choice[0]
+        # The refinement chosen starts afresh: the marginal from the uniform law, as it always does.
+        self.grid = self.log_prior = None
+        self.register_parameter("log_noise", None)
+        self.law_bases, self.law_choice, self.law_learnt = None, [], []
+        return law
+
+    @torch.no_grad()
+    def alternation_on_valley(self, recording: CalibrationRecording) -> bool:
+        """Whether the alternation, fitted as :meth:`alternation_beside` fits it, stops on an osculating valley
+        (:func:`valley_scan`: a calibration along it as likely as the fit, with offsets estimated).
+
+        On a cap of directions with offsets the alternation's per-row bias walks the valley: on the sphere's
+        60-degree cone with offsets at SNR 20 (bench/crb_ratio.py --laws) its shape kept growing over the trainer's
+        steps, 3.7-3.9x the bound in 2 of 10 sessions, while every session had a valley and no session of the band,
+        the hemisphere or the whole sphere had one.
+        """
+        if not self.estimate_offset:
+            return False
+        beside = self.alternation_fit(recording)
+        known = recording.known
+        noise, _ = beside.closed_form_noise(recording)
+        scan = valley_scan(
+            recording.readings[~known], beside.physical_shape(), beside.physical_offset(), recording.magnitude, noise,
+            recording.readings[known], recording.loads[known],
+        )
+        return scan.likely_change > 0
 
     @property
     def direction_snr(self) -> float:
@@ -440,8 +507,7 @@ class ShapeFromMotion(LinearCalibrator):
         if self.learnt_law != "held_out":
             return ()
         d = self.direction_maps.shape[1]
-        spike_per_direction = 1 / self.direction_snr < grid_spacing(d, self.grid_size(d))
-        return HELD_OUT_LAWS + (("harmonic",) if spike_per_direction else ())
+        return HELD_OUT_LAWS + (() if self.grid_resolves_direction() else ("harmonic",))
 
     def grid_size(self, dims: int) -> int:
         """Directions in the marginal's grid: ``marginal_grid``, else 512 on a circle and 2000 on a sphere.
