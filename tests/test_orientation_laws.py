@@ -119,6 +119,40 @@ def test_auto_keeps_the_alternation_where_the_grid_cannot_resolve_a_direction():
     assert model.refinement == "alternation"
 
 
+def sphere_session(law: str, seed: int, channels: int = 6):
+    """A 3-axis session at SNR 20 with offsets, no known loads, 200 rows each in its own orientation (untied)."""
+    datamodule = ForceSensor3DataModule(
+        magnitude=9.81, samples=200, known_loads=0, mirror_hint=False, noise_fraction=0.05, offset_scale=0.1,
+        orientation_law=law, seed=seed, channels=channels, errors={"angle_error_deg": 0.0},
+    )
+    datamodule.setup()
+    return datamodule.data.recordings["rotation"]
+
+
+def test_where_the_spheres_grid_cannot_resolve_a_direction_auto_takes_the_marginal_only_where_it_must():
+    """SNR 20 on the sphere, one direction's spread (3 degrees) under the grid's spacing (4.5): the marginal's learnt law
+    holds each direction where the closed form put it (50 sessions of bench/crb_ratio.py --laws: 1.17x the bound on the
+    band with offsets, 0.98x for the alternation), so auto takes the alternation there. Not on the uniform sphere (no law
+    to learn: the marginal 1.05x, the alternation 1.09x), nor on a 60-degree cone with offsets, whose alternation walks
+    the osculating valley (3.7-3.9x the bound in 2 of 10 sessions), nor with as many channels as axes (the
+    alternation's bias 5-47x the bound)."""
+    band = sphere_session("band", 0)
+    model = ShapeFromMotion()
+    model.initialise(band)
+    assert not model.grid_resolves_direction() and model.refinement == "alternation" and not model.alternation_on_valley(band)
+    assert model.grid is None and model.log_noise is None and model.law_choice == []
+    uniform = ShapeFromMotion()
+    uniform.initialise(sphere_session("uniform", 0))
+    assert uniform.refinement == "marginal" and uniform.law_choice == ["nonparametric"]
+    cone = sphere_session("cone", 0)
+    model = ShapeFromMotion()
+    model.initialise(cone)
+    assert model.refinement == "marginal" and model.alternation_on_valley(cone)
+    triad = ShapeFromMotion()
+    triad.initialise(sphere_session("band", 0, channels=3))
+    assert triad.refinement == "marginal"
+
+
 def test_the_harmonic_law_keeps_a_band_of_directions_narrow_at_low_snr():
     """2-axis band near the first axis at SNR 2: the harmonic law's second moment as narrow as the drawn directions'.
 

@@ -186,7 +186,8 @@ class ShapeFromMotion(LinearCalibrator):
       directions, which is learnt with the shape (:meth:`update_law`), the noise level too: no
       per-sample parameters, so no incidental-parameter bias, and no assumed orientation law.
     - ``"auto"`` (default): ``"marginal"`` below ``MARGINAL_BELOW_SNR`` as estimated from the
-      closed form, else ``"alternation"``.
+      closed form, else ``"alternation"``; where the marginal's grid cannot resolve one direction, the alternation
+      but where the marginal is needed (:meth:`choose_refinement`).
 
     Args:
         rank: ``n``, the number of load axes (2, 3, 6, ...); None takes it from the data.
