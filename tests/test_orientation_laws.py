@@ -119,16 +119,6 @@ def test_auto_keeps_the_alternation_where_the_grid_cannot_resolve_a_direction():
     assert model.refinement == "alternation"
 
 
-def sphere_session(law: str, seed: int, channels: int = 6):
-    """A 3-axis session at SNR 20 with offsets, no known loads, 200 rows each in its own orientation (untied)."""
-    datamodule = ForceSensor3DataModule(
-        magnitude=9.81, samples=200, known_loads=0, mirror_hint=False, noise_fraction=0.05, offset_scale=0.1,
-        orientation_law=law, seed=seed, channels=channels, errors={"angle_error_deg": 0.0},
-    )
-    datamodule.setup()
-    return datamodule.data.recordings["rotation"]
-
-
 def test_where_the_spheres_grid_cannot_resolve_a_direction_auto_takes_the_marginal_only_where_it_must():
     """SNR 20 on the sphere, one direction's spread (3 degrees) under the grid's spacing (4.5): the marginal's learnt law
     holds each direction where the closed form put it (50 sessions of bench/crb_ratio.py --laws: 1.17x the bound on the
@@ -136,20 +126,20 @@ def test_where_the_spheres_grid_cannot_resolve_a_direction_auto_takes_the_margin
     to learn: the marginal 1.05x, the alternation 1.09x), nor on a 60-degree cone with offsets, whose alternation walks
     the osculating valley (3.7-3.9x the bound in 2 of 10 sessions), nor with as many channels as axes (the
     alternation's bias 5-47x the bound)."""
-    band = sphere_session("band", 0)
+    band = law_session(ForceSensor3DataModule, "band", 20.0, 0, offset_scale=0.1)
     model = ShapeFromMotion()
     model.initialise(band)
     assert not model.grid_resolves_direction() and model.refinement == "alternation" and not model.alternation_on_valley(band)
     assert model.grid is None and model.log_noise is None and model.law_choice == []
     uniform = ShapeFromMotion()
-    uniform.initialise(sphere_session("uniform", 0))
+    uniform.initialise(law_session(ForceSensor3DataModule, "uniform", 20.0, 0, offset_scale=0.1))
     assert uniform.refinement == "marginal" and uniform.law_choice == ["nonparametric"]
-    cone = sphere_session("cone", 0)
+    cone = law_session(ForceSensor3DataModule, "cone", 20.0, 0, offset_scale=0.1)
     model = ShapeFromMotion()
     model.initialise(cone)
     assert model.refinement == "marginal" and model.alternation_on_valley(cone)
     triad = ShapeFromMotion()
-    triad.initialise(sphere_session("band", 0, channels=3))
+    triad.initialise(law_session(ForceSensor3DataModule, "band", 20.0, 0, offset_scale=0.1, channels=3))
     assert triad.refinement == "marginal"
 
 
@@ -211,12 +201,13 @@ def test_held_out_likelihood_prefers_the_law_the_directions_were_drawn_from():
     assert held_out_log_likelihood(drawn_cone, unsmoothed_em) > held_out_log_likelihood(drawn_cone, uniform)
 
 
-def law_session(module, law: str, snr: float, seed: int):
-    """A tared session without known loads whose directions follow ``law``, and its true ``S``."""
+def law_session(module, law: str, snr: float, seed: int, **options):
+    """A session without known loads whose directions follow ``law`` (tared unless ``options`` give an
+    ``offset_scale``), one direction per row."""
     sensor = {"magnitude": 111.4, "samples": 96} if module is FingertipDataModule else {"magnitude": 9.81, "samples": 200}
     datamodule = module(
         known_loads=0, mirror_hint=False, noise_fraction=1 / snr, orientation_law=law, seed=seed,
-        errors={"angle_error_deg": 0.0}, **sensor,
+        errors={"angle_error_deg": 0.0}, **sensor, **options,
     )
     datamodule.setup()
     return datamodule.data.recordings["rotation"]
