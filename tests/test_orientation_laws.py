@@ -143,6 +143,27 @@ def test_where_the_spheres_grid_cannot_resolve_a_direction_auto_takes_the_margin
     assert triad.refinement == "marginal"
 
 
+
+def test_with_as_many_channels_as_axes_auto_takes_the_marginal_on_held_poses():
+    """3 channels for 3 axes, 12 held poses with offsets at SNR 5 (a pose's direction SNR 21, sharper than the grid):
+    the poses leave the alternation 3 equations over the shape's and offsets' 9 unknowns, and it runs off along what
+    nearly coinciding poses leave undetermined (bench/crb_ratio.py --laws --p-equals-n, 30 sessions: 4.2x the bound,
+    30x in this one, where the marginal is 0.5x). With 6 channels the same poses keep the alternation."""
+    datamodule = ForceSensor3DataModule(
+        magnitude=9.81, samples=200, channels=3, known_loads=0, mirror_hint=False, noise_fraction=1 / 5.0,
+        offset_scale=0.1, orientation_law="poses", seed=8, errors={"angle_error_deg": 0.0},
+    )
+    datamodule.setup()
+    recording = datamodule.data.recordings["rotation"]
+    truth = torch.linalg.pinv(datamodule.data.truth.matrix.T)
+    auto = refined(ShapeFromMotion(), recording)
+    assert auto.tied and not auto.grid_resolves_direction() and auto.refinement == "marginal"
+    alternation = refined(ShapeFromMotion(refinement="alternation"), recording)
+    assert squared_error(auto, truth) < 0.01 * squared_error(alternation, truth)
+    six_channels = ShapeFromMotion()
+    six_channels.initialise(law_session(ForceSensor3DataModule, "poses", 5.0, 8, offset_scale=0.1))
+    assert six_channels.tied and six_channels.refinement == "alternation"
+
 def test_the_harmonic_law_keeps_a_band_of_directions_narrow_at_low_snr():
     """2-axis band near the first axis at SNR 2: the harmonic law's second moment as narrow as the drawn directions'.
 
