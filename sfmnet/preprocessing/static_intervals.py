@@ -236,7 +236,9 @@ def find_static_intervals(
             f"{len(scan.gap_rows):,} of the time column's {f - 1:,} steps are gaps (over {GAP_PERIODS:g} ticks of "
             f"{scan.tick:.3g} s): its rate changes within the file or its stamps are not the rows' times; split the file "
             "where the rate changes, or find the intervals in row order (data.static_intervals=true, data.time_column=null "
-            "and data.channel_columns naming the channels)"
+            "and data.channel_columns naming the channels); a logger that writes a burst of rows at each held pose (a gap "
+            "at each move) has no motion to find: fit every row with data.static_intervals=false, and give each row's pose "
+            "as data.group_column if the file has one"
         )
     if period is not None and 4 * window_rows > f:
         raise SfmnetError(
