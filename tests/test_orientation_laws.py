@@ -148,6 +148,18 @@ def test_where_the_spheres_grid_cannot_resolve_a_direction_auto_takes_the_margin
 
 
 
+
+def test_an_alternation_still_moving_after_its_last_step_is_not_trusted():
+    """The 60-degree cone with offsets at SNR 20: seed 0's alternation walks the osculating valley (its last step moves
+    the calibration by 2e-2 of its norm, 3.7x the bound and growing), seed 1's stops (1e-10, 0.30x). An unconverged fit's
+    answer and bars describe a point on the way, so it says so and the run does not trust it."""
+    walking, stopping = (law_session(ForceSensor3DataModule, "cone", 20.0, seed, offset_scale=0.1) for seed in (0, 1))
+    model = refined(ShapeFromMotion(refinement="alternation"), walking)
+    assert model.alternation_still_moving > 1e-3 and model.fit_failed
+    assert any("the alternation had not converged" in warning for warning in model.fit_warnings)
+    model = refined(ShapeFromMotion(refinement="alternation"), stopping)
+    assert model.alternation_still_moving == 0.0 and not model.fit_failed
+
 def test_with_as_many_channels_as_axes_auto_takes_the_marginal_on_held_poses():
     """3 channels for 3 axes, 12 held poses with offsets at SNR 5 (a pose's direction SNR 21, sharper than the grid):
     the poses leave the alternation 3 equations over the shape's and offsets' 9 unknowns, and it runs off along what

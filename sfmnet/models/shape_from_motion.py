@@ -270,6 +270,8 @@ class ShapeFromMotion(LinearCalibrator):
         self.register_buffer("row_configuration", None)
         self.register_buffer("row_pose", None)
         self.rows_per_direction = 1.0
+        # How far the alternation's last step moved [S; o], a fraction of its norm, where it ended short of convergence.
+        self.alternation_still_moving = 0.0
 
     @property
     def fit_failed(self) -> bool:
@@ -279,8 +281,10 @@ class ShapeFromMotion(LinearCalibrator):
     def fit_warnings(self) -> list[str]:
         return [*self.notes, *self.fit_problems()]
 
-    def fit_problems(self) -> list[str]:
-        """Why the alternation's answer and error bars are not to be trusted: it ran away, or the SNR is too low for it."""
+    def fit_problems(self, unconverged: bool = True) -> list[str]:
+        """Why the alternation's answer and error bars are not to be trusted: it ran away, the SNR is too low for it, or
+        (``unconverged``) its last step ended short of convergence having moved ``[S; o]`` by over
+        :data:`ALTERNATION_WALKING_STEP` of its norm."""
         if self.refinement != "alternation":
             return []
         growth = shape_growth(self.shape.detach(), self.closed_form_scale)
@@ -288,6 +292,13 @@ class ShapeFromMotion(LinearCalibrator):
             return [runaway_warning(growth, "use model.refinement=marginal (or auto)")]
         if self.constrained and self.direction_snr < ALTERNATION_BIASED_BELOW_SNR:
             return [low_snr_warning(self.direction_snr, "set model.refinement=marginal")]
+        if unconverged and self.alternation_still_moving > ALTERNATION_WALKING_STEP:
+            return [
+                f"the alternation had not converged: its last training step still moved the calibration by "
+                f"{self.alternation_still_moving:.1e} of its norm, so this calibration and its error bars describe a point "
+                "on the way (on part of the sphere with offsets it can walk a valley of calibrations as likely as each "
+                "other): train longer (trainer.max_epochs), turn the mass through more of the sphere, or give known loads"
+            ]
         return []
 
     @property
@@ -302,7 +313,8 @@ class ShapeFromMotion(LinearCalibrator):
         if self.refinement != "marginal" or self.direction_snr < ALTERNATION_BIASED_BELOW_SNR:
             return None
         beside = self.alternation_fit(recording)
-        return None if beside.fit_failed else beside
+        # One still walking a valley is still the alternation's answer, the one a user would get: compared all the same.
+        return None if beside.fit_problems(unconverged=False) else beside
 
     def alternation_fit(self, recording: CalibrationRecording) -> ShapeFromMotion:
         """The alternation with this model's options fitted to ``recording``: :data:`ALTERNATION_BESIDE_STEPS` steps."""
@@ -483,10 +495,8 @@ class ShapeFromMotion(LinearCalibrator):
         )
         if scan.likely_change <= 0:
             return False
-        fitted = torch.cat([beside.shape, beside.offset[None]]).clone()
         beside.alternate((torch.arange(len(recording.readings)), recording.readings, recording.loads))
-        step = torch.cat([beside.shape, beside.offset[None]]) - fitted
-        return float(step.norm()) > ALTERNATION_WALKING_STEP * float(fitted.norm())
+        return beside.alternation_still_moving > ALTERNATION_WALKING_STEP
 
     @property
     def direction_snr(self) -> float:
@@ -941,15 +951,19 @@ class ShapeFromMotion(LinearCalibrator):
         scaled = self.scaled_batch(batch)
         acceleration = AndersonAcceleration()
         current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
+        start = current.clone()
         # Each row's multiplier from the last round starts the next round's direction solve.
         multipliers = scaled.readings.new_full((len(scaled.readings),), float("nan"))
+        converged = False
         for _ in range(self.alternation_steps):
             motion_state = self.scaled_motion(scaled, multipliers)
             current = acceleration.step(current, self.alternation_map(motion_state))
             self.shape.copy_(current[: self.rank])
             self.offset.copy_(current[self.rank])
             if acceleration.step_norm <= ALTERNATION_TOLERANCE * float(current.norm()):
+                converged = True
                 break
+        self.alternation_still_moving = 0.0 if converged else float((current - start).norm() / current.norm())
         return self.loss_terms(*motion_state)
 
     def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
