@@ -453,8 +453,8 @@ class ShapeFromMotion(LinearCalibrator):
         beyond its bars (bench/crb_ratio.py --laws --p-equals-n, 3 axes at SNR 20: 5-47x the bound on the sphere, the
         hemisphere and the band, where the marginal is at it). Tied, 12 poses leave the alternation 3 equations over
         the shape's and offsets' 9 unknowns, and where poses nearly coincide it runs off along what they leave
-        undetermined: at SNR 10 and 5 (a pose's direction SNR 41 and 21) it was 3.2x and 4.2x the bound, 43x and 30x
-        in its worst sessions, where the marginal was 0.37x and 0.22x, 1.4x and 0.8x at worst."""
+        undetermined: at SNR 10 and 5 (a pose's direction SNR 41 and 21, 30 sessions each) it was 3.2x and 3.1x the
+        bound, 42x and 30x in its worst sessions, where the marginal was 0.37x and 0.23x, 1.4x and 1.0x at worst."""
         return recording.readings.shape[1] <= self.rank
 
     @torch.no_grad()
