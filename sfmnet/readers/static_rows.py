@@ -104,10 +104,18 @@ def fitted_rows(
         with_known = f" and {poses} known poses" if poses else ""
         raise SfmnetError(
             f"{detection.count} static intervals found but a {axes}-axis calibration with offsets{with_known} needs at "
-            f"least {needed} (the unknowns of its metric constraint): record more poses held still, tune data.static "
-            "(window, threshold), or fit every row with data.static_intervals=false"
+            f"least {needed} (the unknowns of its metric constraint): record more poses held still, each for at least "
+            f"{shortest_interval(detection)} (the shortest interval kept), tune data.static (window, min_duration, "
+            "threshold), or fit every row with data.static_intervals=false"
         )
     return detection.mask
+
+
+def shortest_interval(detection: StaticIntervals) -> str:
+    """The shortest static interval ``detection`` keeps, in seconds where the recording has a time, else in rows."""
+    if detection.period is None:
+        return f"{detection.min_rows:,} rows"
+    return f"{detection.min_rows * detection.period:.3g} s"
 
 
 def known_poses(known: np.ndarray) -> list[np.ndarray]:
