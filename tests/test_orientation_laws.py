@@ -165,11 +165,7 @@ def test_with_as_many_channels_as_axes_auto_takes_the_marginal_on_held_poses():
     the poses leave the alternation 3 equations over the shape's and offsets' 9 unknowns, and it runs off along what
     nearly coinciding poses leave undetermined (bench/crb_ratio.py --laws --p-equals-n, 30 sessions: 4.2x the bound,
     30x in this one, where the marginal is 0.5x). With 6 channels the same poses keep the alternation."""
-    datamodule = ForceSensor3DataModule(
-        magnitude=9.81, samples=200, channels=3, known_loads=0, mirror_hint=False, noise_fraction=1 / 5.0,
-        offset_scale=0.1, orientation_law="poses", seed=8, errors={"angle_error_deg": 0.0},
-    )
-    datamodule.setup()
+    datamodule = law_datamodule(ForceSensor3DataModule, "poses", 5.0, 8, offset_scale=0.1, channels=3)
     recording = datamodule.data.recordings["rotation"]
     truth = torch.linalg.pinv(datamodule.data.truth.matrix.T)
     auto = refined(ShapeFromMotion(), recording)
@@ -238,16 +234,21 @@ def test_held_out_likelihood_prefers_the_law_the_directions_were_drawn_from():
     assert held_out_log_likelihood(drawn_cone, unsmoothed_em) > held_out_log_likelihood(drawn_cone, uniform)
 
 
-def law_session(module, law: str, snr: float, seed: int, **options):
-    """A session without known loads whose directions follow ``law`` (tared unless ``options`` give an
-    ``offset_scale``), one direction per row."""
+def law_datamodule(module, law: str, snr: float, seed: int, **options):
+    """A simulated session, set up, without known loads, whose directions follow ``law`` (tared unless ``options`` give
+    an ``offset_scale``), one direction per row (a pose's rows share one on the ``poses`` law)."""
     sensor = {"magnitude": 111.4, "samples": 96} if module is FingertipDataModule else {"magnitude": 9.81, "samples": 200}
     datamodule = module(
         known_loads=0, mirror_hint=False, noise_fraction=1 / snr, orientation_law=law, seed=seed,
         errors={"angle_error_deg": 0.0}, **sensor, **options,
     )
     datamodule.setup()
-    return datamodule.data.recordings["rotation"]
+    return datamodule
+
+
+def law_session(module, law: str, snr: float, seed: int, **options):
+    """The recording of :func:`law_datamodule`."""
+    return law_datamodule(module, law, snr, seed, **options).data.recordings["rotation"]
 
 
 @pytest.mark.parametrize(
