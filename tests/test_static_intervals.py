@@ -16,7 +16,7 @@ from sfmnet.calibration import Calibration
 from sfmnet.eval.goodness_of_fit import POSE_MISFIT_Z
 from sfmnet.simulators.simulated_stream import ContinuousRecording, simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
-from sfmnet.preprocessing.static_intervals import find_static_intervals, intervals_of
+from sfmnet.preprocessing.static_intervals import find_static_intervals, intervals_of, noise_correlation
 from sfmnet.training.run import train
 from sfmnet.training.static_report import describe
 from tests.conftest import compose_config, write_session
@@ -119,12 +119,61 @@ def test_rows_logged_twice_are_not_counted_as_new_measurements(tmp_path: Path):
     metrics = calibrate(tmp_path / "twice.csv", tmp_path / "twice")
     warnings = json.loads((tmp_path / "twice" / "calibration.json").read_text())["warnings"]
     assert any(re.match(r"(49|50)\.\d % of the static rows repeat the row before on every channel", w) for w in warnings), warnings
+    # Pairs of equal rows are noise correlated in time too (2x), said once, by the warning that names the cause.
+    assert metrics["static/noise_correlation"] == pytest.approx(2.0, rel=0.2)
+    assert not any("correlated in time" in w for w in warnings)
     assert metrics["error_bars_trustworthy"] == 0.0
     # Each interval's rows come in pairs, but for one cut at an end.
     assert abs(metrics["static/repeated_rows"] - metrics["static/rows_kept"] / 2) <= metrics["static/intervals"]
     write_stream_csv(recording, tmp_path / "once.csv")
     calibrate(tmp_path / "once.csv", tmp_path / "once")
     assert not any("repeat the row before" in w for w in json.loads((tmp_path / "once" / "calibration.json").read_text())["warnings"])
+
+
+def autoregressive(rows: int, channels: int, lag_one: float, seed: int) -> np.ndarray:
+    """Unit-variance AR(1) noise, ``rows x channels``, of lag-one correlation ``lag_one``."""
+    shocks = np.random.default_rng(seed).normal(size=(rows, channels)) * np.sqrt(1 - lag_one**2)
+    noise = np.empty_like(shocks)
+    noise[0] = shocks[0] / np.sqrt(1 - lag_one**2)
+    for row in range(1, rows):
+        noise[row] = lag_one * noise[row - 1] + shocks[row]
+    return noise
+
+
+@pytest.mark.parametrize("lag_one", [0.0, 0.5, 0.8])
+def test_noise_correlation_is_the_variance_of_window_means_over_independent_rows(lag_one: float):
+    """40 holds of 300 rows, windows of 51: white noise gives 1, AR(1) noise (1 + r) / (1 - r) less the window's edges."""
+    readings = 1000.0 + autoregressive(40 * 300, 3, lag_one, seed=1)
+    intervals = np.array([[300 * k, 300 * k + 300] for k in range(40)])
+    ratios, dof = noise_correlation(readings, intervals, 51, chunk_rows=997)
+    assert dof == 40 * (300 // 51 - 1)
+    batch, r = 51, lag_one
+    expected = (1 + r) / (1 - r) - 2 * r * (1 - r**batch) / (batch * (1 - r) ** 2)
+    # One channel's ratio is a variance over 160 degrees of freedom: within 4 standard deviations of it.
+    assert ratios == pytest.approx(np.full(3, expected), rel=4 * np.sqrt(2 / dof))
+
+
+def test_noise_correlated_in_time_within_the_holds_is_flagged(tmp_path: Path):
+    """A hand's tremor or a filtered sensor: AR(1) noise of lag-one correlation 0.8 over the sensor's own white noise
+    leaves each pose's mean far noisier than its rows' count says, and error bars that count every row too small. The
+    stream's white noise alone is not flagged."""
+    recording, _ = stream(poses=12)
+    write_stream_csv(recording, tmp_path / "white.csv")
+    metrics = calibrate(tmp_path / "white.csv", tmp_path / "white")
+    assert 0.7 < metrics["static/noise_correlation"] < 1.3
+    assert metrics["error_bars_trustworthy"] == 1.0
+    tremor = 2 * stream_noise(recording) * autoregressive(*recording.readings.shape, lag_one=0.8, seed=2)
+    shaking = dataclasses.replace(recording, readings=recording.readings + torch.from_numpy(tremor))
+    write_stream_csv(shaking, tmp_path / "tremor.csv")
+    metrics = calibrate(tmp_path / "tremor.csv", tmp_path / "tremor")
+    warnings = json.loads((tmp_path / "tremor" / "calibration.json").read_text())["warnings"]
+    assert metrics["static/noise_correlation"] > 4
+    assert any(w.startswith("the noise within the static intervals is correlated in time: means over ") for w in warnings), warnings
+    assert metrics["error_bars_trustworthy"] == 0.0
+    # Streamed, the detector reads the file through a memory map in chunks: the same figure.
+    streamed = calibrate(tmp_path / "tremor.csv", tmp_path / "streamed", experiment="calibrate_stream")
+    assert streamed["static/noise_correlation"] == pytest.approx(metrics["static/noise_correlation"], rel=1e-9)
+    assert streamed["error_bars_trustworthy"] == 0.0
 
 
 def test_independent_poses_are_not_a_stream(tmp_path: Path):

@@ -39,6 +39,11 @@ MAX_CONSTRAINT_RATIO = 1.2
 # Static rows repeating the row before on every channel, as a fraction of the steps: a fraction r leaves error bars
 # 1 / sqrt(1 - r) too small, 8 % at 15 % (the real accelerometer stream: 0.18 %).
 MAX_REPEATED_FRACTION = 0.15
+# Means over a detection window of static rows may vary this many times what independent rows' would: the error bars'
+# variance is understated as much (the bars 1.4x too small at 2). White noise measures 1 +- sqrt(2 / dof) (0.84-1.03
+# on 40 holds of 300 simulated rows), AR(1) noise of lag-one correlation 0.8 measures 7.5-8.3, and the real
+# accelerometer stream (experiment=imu_accelerometer) 1.6, 1.6 and 5.0 on its three channels.
+MAX_NOISE_CORRELATION = 2.0
 # Pose means may miss the model by this much more than white noise within the poses explains.
 MAX_POSE_MISFIT_RATIO = 2.0
 # ... and by no more than chance allows: the standard-normal quantile (p ~ 1e-3) their chi-square may reach. A bias
@@ -253,6 +258,33 @@ def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int
         "than the sensor updates, duplicated rows, or readings coarser than their noise): repeated readings are not new "
         "measurements, so the error bars, which count every row, are too small; drop the repeats or log at the "
         "sensor's own rate"
+    )
+
+
+def correlated_noise_warning(ratios: np.ndarray, dof: int, batch: str) -> str | None:
+    """A warning when the noise within the static intervals is correlated in time, or None.
+
+    Error bars count every row as an independent measurement; where means over a few consecutive rows vary more
+    than that allows (:func:`~sfmnet.preprocessing.static_intervals.noise_correlation`, averaged over the channels),
+    a pose's mean is worth fewer rows than it holds. Flagged past :data:`MAX_NOISE_CORRELATION` and four of white
+    noise's standard deviations (``sqrt(2 / dof)``).
+
+    Args:
+        ratios: ``p``, per channel (NaN: not measured); dof: their window means' degrees of freedom;
+        batch: the window, in words (``51 rows (0.51 s)``).
+    """
+    measured = ratios[np.isfinite(ratios)]
+    if not len(measured) or dof <= 0:
+        return None
+    ratio = float(measured.mean())
+    if ratio <= MAX_NOISE_CORRELATION or ratio - 1 <= 4 * math.sqrt(2 / dof):
+        return None
+    return (
+        f"the noise within the static intervals is correlated in time: means over {batch} vary {ratio:.1f}x as much as "
+        "independent rows' would (tremor, vibration, drift within a hold, a filtered or oversampled sensor), so the error "
+        f"bars, which count every row as independent, are at least {math.sqrt(ratio):.1f}x too small; the calibration "
+        "itself is not biased by it: scale its error bars by that factor or more before using them, or log at the "
+        "sensor's own bandwidth"
     )
 
 

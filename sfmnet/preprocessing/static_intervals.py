@@ -90,6 +90,10 @@ class StaticIntervals:
             ticks (taken in file order).
         repeated_rows: kept rows equal to the kept row before on every channel (0 when ``independent``).
         channel_repeats: ``p`` int, kept rows equal to the kept row before on each channel alone.
+        noise_correlation: ``p``, how many times the variance of a mean over ``window_rows`` consecutive static rows
+            exceeds what independent rows give (:func:`noise_correlation`: 1 for white noise; NaN where no
+            interval holds two windows, a channel is constant, or ``independent``).
+        correlation_dof: the degrees of freedom of ``noise_correlation``'s window means (0 where NaN).
         serial_ratio: mean squared step between consecutive rows over twice the variance,
             averaged over channels (1: independent rows; near 0: a stream).
         independent: the rows are independent poses, not a stream: every row is kept.
@@ -111,6 +115,8 @@ class StaticIntervals:
     jitter_rows: int
     repeated_rows: int
     channel_repeats: np.ndarray
+    noise_correlation: np.ndarray
+    correlation_dof: int
     serial_ratio: float
     independent: bool
     interval_times: np.ndarray | None
@@ -126,6 +132,11 @@ class StaticIntervals:
     @property
     def rows_kept(self) -> int:
         return int(self.mask.sum())
+
+    def window_words(self) -> str:
+        """The moving window in words: ``51 rows (0.51 s)``, or ``25 rows`` without time."""
+        seconds = "" if self.period is None else f" ({self.window_rows * self.period:.3g} s)"
+        return f"{self.window_rows} rows{seconds}"
 
     def interval_of_rows(self) -> np.ndarray:
         """``f`` int64: each row's interval index, -1 outside every interval."""
@@ -222,6 +233,7 @@ def find_static_intervals(
         return StaticIntervals(
             mask=np.ones(f, dtype=bool), intervals=np.stack([rows, rows + 1], axis=1), noise_floor=np.full(p, np.nan),
             statistic=np.zeros(f, dtype=np.float32), independent=True, repeated_rows=0, channel_repeats=np.zeros(p, dtype=np.int64),
+            noise_correlation=np.full(p, np.nan), correlation_dof=0,
             interval_times=None if time is None else np.stack([scan.time_at(rows), scan.time_at(rows)], axis=1),
             **common,
         )
@@ -256,12 +268,14 @@ def find_static_intervals(
     for first, stop in intervals:
         mask[first:stop] = True
     repeated, channel_repeats = repeats_within(readings, intervals, chunk_rows)
+    correlation, correlation_dof = noise_correlation(readings, intervals, window_rows, chunk_rows)
     times = None
     if time is not None:
         times = np.stack([scan.time_at(intervals[:, 0]), scan.time_at(intervals[:, 1] - 1)], axis=1)
     return StaticIntervals(
         mask=mask, intervals=intervals, noise_floor=floor, statistic=statistic, independent=False,
         repeated_rows=repeated, channel_repeats=channel_repeats,
+        noise_correlation=correlation, correlation_dof=correlation_dof,
         interval_times=times, **common,
     )
 
@@ -465,6 +479,51 @@ def repeats_within(readings: Rows, intervals: np.ndarray, chunk_rows: int) -> tu
             repeated += int(same.all(axis=1).sum())
             channel_repeats += same.sum(axis=0)
     return repeated, channel_repeats
+
+
+def noise_correlation(readings: Rows, intervals: np.ndarray, batch_rows: int, chunk_rows: int) -> tuple[np.ndarray, int]:
+    """Per channel, ``b var(batch means) / var(rows)`` within the intervals: how many times the variance of a mean over
+    ``b = batch_rows`` consecutive rows exceeds ``var / b``, what independent rows give (batch means, as in Markov chain
+    error analysis). 1 for white noise; ``(1 + r) / (1 - r)`` less ``O(1 / b)`` for AR(1) noise of lag-one correlation
+    ``r``; it grows with ``b`` for drift within a hold. Each interval's full batches are taken about that interval's
+    own mean (its pose), the deviations pooled over intervals with their degrees of freedom.
+
+    Args:
+        readings: ``f x p`` in row order; intervals: ``k x 2`` half-open; batch_rows: ``b`` (at least 2).
+
+    Returns:
+        ``p`` ratios (NaN for a constant channel, or where no interval holds two batches) and the batch means'
+        degrees of freedom (each interval's batches less one), summed over the intervals.
+    """
+    p = readings.shape[1]
+    step = max(batch_rows, chunk_rows // batch_rows * batch_rows)
+    row_squares, batch_squares = np.zeros(p), np.zeros(p)
+    row_dof = batch_dof = 0
+    for first, stop in intervals.tolist():
+        batches = (stop - first) // batch_rows
+        if batches < 2:
+            continue
+        end = first + batches * batch_rows
+        # About the interval's first row: sums of squares of raw counts would lose the noise to rounding.
+        origin = np.asarray(readings[first : first + 1], dtype=np.float64)[0]
+        sums, squares, mean_squares = np.zeros(p), np.zeros(p), np.zeros(p)
+        for start in range(first, end, step):
+            block = np.asarray(readings[start : min(end, start + step)], dtype=np.float64) - origin
+            sums += block.sum(axis=0)
+            squares += (block**2).sum(axis=0)
+            mean_squares += (block.reshape(-1, batch_rows, p).mean(axis=1) ** 2).sum(axis=0)
+        rows = batches * batch_rows
+        mean = sums / rows
+        row_squares += squares - rows * mean**2
+        batch_squares += mean_squares - batches * mean**2
+        row_dof += rows - 1
+        batch_dof += batches - 1
+    if batch_dof == 0:
+        return np.full(p, np.nan), 0
+    row_variance = row_squares / row_dof
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(row_variance > 0, batch_rows * (batch_squares / batch_dof) / row_variance, np.nan)
+    return ratio, batch_dof
 
 
 def static_runs(quiet: np.ndarray, min_rows: int, starts: np.ndarray, window_rows: int) -> np.ndarray:

@@ -22,7 +22,7 @@ from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import method_title, motion_figure, spectrum_figure
 from sfmnet.eval.held_out import load_errors, magnitude_errors
-from sfmnet.eval.goodness_of_fit import repeated_rows_warning
+from sfmnet.eval.goodness_of_fit import correlated_noise_warning, repeated_rows_warning
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.linalg.uncertainty import relative_matrix_std
 from sfmnet.models.linear_calibrator import LinearCalibrator
@@ -68,10 +68,15 @@ class CalibrationTask(Task):
         repeats = None if detection is None else repeated_rows_warning(
             detection.repeated_rows, detection.channel_repeats, detection.rows_kept - detection.count
         )
-        warnings = [*data.warnings, *model.fit_warnings, *warnings, *([repeats] if repeats else [])]
+        # Repeated rows are correlated noise too: one warning says so, the one that names the cause.
+        correlated = None if detection is None or repeats else correlated_noise_warning(
+            detection.noise_correlation, detection.correlation_dof, detection.window_words()
+        )
+        rows_dependent = [warning for warning in (repeats, correlated) if warning]
+        warnings = [*data.warnings, *model.fit_warnings, *warnings, *rows_dependent]
         # The error bars assume the model, independent rows and a fit that worked; a failed check or fit says they
         # cannot be believed.
-        trustworthy = goodness.trustworthy and not model.fit_failed and repeats is None
+        trustworthy = goodness.trustworthy and not model.fit_failed and not rows_dependent
         calibration = model.to_calibration(
             data.channels,
             data.axes,
