@@ -119,8 +119,9 @@ def test_rows_logged_twice_are_not_counted_as_new_measurements(tmp_path: Path):
     metrics = calibrate(tmp_path / "twice.csv", tmp_path / "twice")
     warnings = json.loads((tmp_path / "twice" / "calibration.json").read_text())["warnings"]
     assert any(re.match(r"(49|50)\.\d % of the static rows repeat the row before on every channel", w) for w in warnings), warnings
-    # Pairs of equal rows are noise correlated in time too (2x), said once, by the warning that names the cause.
-    assert metrics["static/noise_correlation"] == pytest.approx(2.0, rel=0.2)
+    # Pairs of equal rows are noise correlated in time too (2x, noisier on the worst of 8 channels), said once, by the
+    # warning that names the cause.
+    assert metrics["static/noise_correlation"] > 1.5
     assert not any("correlated in time" in w for w in warnings)
     assert metrics["error_bars_trustworthy"] == 0.0
     # Each interval's rows come in pairs, but for one cut at an end.
@@ -160,7 +161,8 @@ def test_noise_correlated_in_time_within_the_holds_is_flagged(tmp_path: Path):
     recording, _ = stream(poses=12)
     write_stream_csv(recording, tmp_path / "white.csv")
     metrics = calibrate(tmp_path / "white.csv", tmp_path / "white")
-    assert 0.7 < metrics["static/noise_correlation"] < 1.3
+    # The worst of 8 channels' figures, each 1 within a few tenths.
+    assert 0.7 < metrics["static/noise_correlation"] < 2.0
     assert metrics["error_bars_trustworthy"] == 1.0
     tremor = 2 * stream_noise(recording) * autoregressive(*recording.readings.shape, lag_one=0.8, seed=2)
     shaking = dataclasses.replace(recording, readings=recording.readings + torch.from_numpy(tremor))
@@ -168,8 +170,13 @@ def test_noise_correlated_in_time_within_the_holds_is_flagged(tmp_path: Path):
     metrics = calibrate(tmp_path / "tremor.csv", tmp_path / "tremor")
     warnings = json.loads((tmp_path / "tremor" / "calibration.json").read_text())["warnings"]
     assert metrics["static/noise_correlation"] > 4
-    assert any(w.startswith("the noise within the static intervals is correlated in time: means over ") for w in warnings), warnings
+    assert any(w.startswith("the noise within the static intervals is correlated in time: on channel ") for w in warnings), warnings
     assert metrics["error_bars_trustworthy"] == 0.0
+    # Holds shorter than two detection windows (a window of 1 s, intervals of 1 s: 53-56 rows of 51): the batches
+    # shorten to half the median hold rather than leave the noise unmeasured.
+    short = find_static_intervals(shaking.readings.numpy(), shaking.time.numpy(), window=1.0, min_duration=1.0)
+    assert short.correlation_rows < short.window_rows <= np.diff(short.intervals, axis=1).min() < 2 * short.window_rows
+    assert np.nanmax(short.noise_correlation) > 4
     # Streamed, the detector reads the file through a memory map in chunks: the same figure.
     streamed = calibrate(tmp_path / "tremor.csv", tmp_path / "streamed", experiment="calibrate_stream")
     assert streamed["static/noise_correlation"] == pytest.approx(metrics["static/noise_correlation"], rel=1e-9)

@@ -39,11 +39,14 @@ MAX_CONSTRAINT_RATIO = 1.2
 # Static rows repeating the row before on every channel, as a fraction of the steps: a fraction r leaves error bars
 # 1 / sqrt(1 - r) too small, 8 % at 15 % (the real accelerometer stream: 0.18 %).
 MAX_REPEATED_FRACTION = 0.15
-# Means over a detection window of static rows may vary this many times what independent rows' would: the error bars'
-# variance is understated as much (the bars 1.4x too small at 2). White noise measures 1 +- sqrt(2 / dof) (0.84-1.03
-# on 40 holds of 300 simulated rows), AR(1) noise of lag-one correlation 0.8 measures 7.5-8.3, and the real
-# accelerometer stream (experiment=imu_accelerometer) 1.6, 1.6 and 5.0 on its three channels.
+# Means over a few consecutive static rows may vary this many times what independent rows' would, on the worst channel:
+# the error bars' variance is understated up to as much (the bars up to 1.4x too small at 2). White noise measures
+# 1 +- sqrt(2 / dof) (the worst of 3 channels: 0.88-1.49 on a hostile tester's 21 white and quantised streams), AR(1)
+# noise of lag-one correlation 0.8 measures 8.0-11.9, and the real accelerometer stream (experiment=imu_accelerometer)
+# 1.6, 1.6 and 5.0 on its three channels.
 MAX_NOISE_CORRELATION = 2.0
+# ... and by more than chance allows the worst of the channels: this many standard deviations of white noise's figure.
+NOISE_CORRELATION_SIGMAS = 5.0
 # Pose means may miss the model by this much more than white noise within the poses explains.
 MAX_POSE_MISFIT_RATIO = 2.0
 # ... and by no more than chance allows: the standard-normal quantile (p ~ 1e-3) their chi-square may reach. A bias
@@ -261,30 +264,33 @@ def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int
     )
 
 
-def correlated_noise_warning(ratios: np.ndarray, dof: int, batch: str) -> str | None:
+def correlated_noise_warning(ratios: np.ndarray, dof: int, batch: str, channels: list[str]) -> str | None:
     """A warning when the noise within the static intervals is correlated in time, or None.
 
     Error bars count every row as an independent measurement; where means over a few consecutive rows vary more
-    than that allows (:func:`~sfmnet.preprocessing.static_intervals.noise_correlation`, averaged over the channels),
-    a pose's mean is worth fewer rows than it holds. Flagged past :data:`MAX_NOISE_CORRELATION` and four of white
-    noise's standard deviations (``sqrt(2 / dof)``).
+    than that allows (:func:`~sfmnet.preprocessing.static_intervals.noise_correlation`), a pose's mean is worth fewer
+    rows than it holds. Flagged on the worst channel past :data:`MAX_NOISE_CORRELATION` and
+    :data:`NOISE_CORRELATION_SIGMAS` of white noise's standard deviation (``sqrt(2 / dof)``); one channel's noise
+    enters every entry of the calibration that reads it.
 
     Args:
-        ratios: ``p``, per channel (NaN: not measured); dof: their window means' degrees of freedom;
-        batch: the window, in words (``51 rows (0.51 s)``).
+        ratios: ``p``, per channel (NaN: not measured); dof: their batch means' degrees of freedom;
+        batch: the batch, in words (``51 rows (0.51 s)``); channels: the ``p`` channels' names.
     """
-    measured = ratios[np.isfinite(ratios)]
-    if not len(measured) or dof <= 0:
+    measured = np.where(np.isfinite(ratios), ratios, -np.inf)
+    if dof <= 0 or not np.isfinite(measured).any():
         return None
-    ratio = float(measured.mean())
-    if ratio <= MAX_NOISE_CORRELATION or ratio - 1 <= 4 * math.sqrt(2 / dof):
+    worst = int(np.argmax(measured))
+    ratio = float(measured[worst])
+    if ratio <= MAX_NOISE_CORRELATION or ratio - 1 <= NOISE_CORRELATION_SIGMAS * math.sqrt(2 / dof):
         return None
     return (
-        f"the noise within the static intervals is correlated in time: means over {batch} vary {ratio:.1f}x as much as "
-        "independent rows' would (tremor, vibration, drift within a hold, a filtered or oversampled sensor), so the error "
-        f"bars, which count every row as independent, are at least {math.sqrt(ratio):.1f}x too small; the calibration "
-        "itself is not biased by it: scale its error bars by that factor or more before using them, or log at the "
-        "sensor's own bandwidth"
+        f"the noise within the static intervals is correlated in time: on channel {channels[worst]}, means over {batch} "
+        f"vary {ratio:.1f}x as much as independent rows' would (tremor, vibration, drift within a hold, a filtered or "
+        f"oversampled sensor), so the error bars, which count every row as independent, are up to {math.sqrt(ratio):.1f}x "
+        "too small, more where the correlation outlasts the batch; scale them by that factor or more before using them. "
+        "Noise does not bias the calibration; motion left inside the intervals reads the same way and does: if the "
+        "detection window (data.static.window) is shorter than the moves, lengthen it"
     )
 
 
@@ -543,8 +549,9 @@ def goodness_of_fit(
         elif not tied and equations < untied_needed and scatter <= MAX_HELD_POSE_SCATTER:
             warnings.append(
                 f"the rows were held at only {equations} orientations (poses) and each row's direction was fitted on its "
-                f"own: with fewer than {untied_needed} poses such error bars come out too small; give data.group_column "
-                "the pose each row was held in (or a time column, whose static intervals tie them), or record more poses"
+                f"own: with fewer than {untied_needed} poses such error bars come out too small; record more poses, or "
+                "calibrate in memory (calibrate_csv) with data.group_column giving each row's pose or a time column, whose "
+                "static intervals tie each pose's rows to one direction (calibrate_stream fits every row on its own)"
             )
     if matrix_std is not None:
         relative = relative_matrix_std(matrix_std, matrix)

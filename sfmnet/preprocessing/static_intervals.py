@@ -90,10 +90,11 @@ class StaticIntervals:
             ticks (taken in file order).
         repeated_rows: kept rows equal to the kept row before on every channel (0 when ``independent``).
         channel_repeats: ``p`` int, kept rows equal to the kept row before on each channel alone.
-        noise_correlation: ``p``, how many times the variance of a mean over ``window_rows`` consecutive static rows
-            exceeds what independent rows give (:func:`noise_correlation`: 1 for white noise; NaN where no
-            interval holds two windows, a channel is constant, or ``independent``).
-        correlation_dof: the degrees of freedom of ``noise_correlation``'s window means (0 where NaN).
+        noise_correlation: ``p``, how many times the variance of a mean over ``correlation_rows`` consecutive static
+            rows exceeds what independent rows give (:func:`noise_correlation`: 1 for white noise; NaN where no
+            interval holds two batches, a channel is constant, or ``independent``).
+        correlation_dof: the degrees of freedom of ``noise_correlation``'s batch means (0 where NaN).
+        correlation_rows: the batch length of ``noise_correlation`` (:func:`correlation_batch_rows`).
         serial_ratio: mean squared step between consecutive rows over twice the variance,
             averaged over channels (1: independent rows; near 0: a stream).
         independent: the rows are independent poses, not a stream: every row is kept.
@@ -117,6 +118,7 @@ class StaticIntervals:
     channel_repeats: np.ndarray
     noise_correlation: np.ndarray
     correlation_dof: int
+    correlation_rows: int
     serial_ratio: float
     independent: bool
     interval_times: np.ndarray | None
@@ -133,10 +135,10 @@ class StaticIntervals:
     def rows_kept(self) -> int:
         return int(self.mask.sum())
 
-    def window_words(self) -> str:
-        """The moving window in words: ``51 rows (0.51 s)``, or ``25 rows`` without time."""
-        seconds = "" if self.period is None else f" ({self.window_rows * self.period:.3g} s)"
-        return f"{self.window_rows} rows{seconds}"
+    def correlation_words(self) -> str:
+        """The batch of :attr:`noise_correlation` in words: ``51 rows (0.51 s)``, or ``25 rows`` without time."""
+        seconds = "" if self.period is None else f" ({self.correlation_rows * self.period:.3g} s)"
+        return f"{self.correlation_rows} rows{seconds}"
 
     def interval_of_rows(self) -> np.ndarray:
         """``f`` int64: each row's interval index, -1 outside every interval."""
@@ -233,7 +235,7 @@ def find_static_intervals(
         return StaticIntervals(
             mask=np.ones(f, dtype=bool), intervals=np.stack([rows, rows + 1], axis=1), noise_floor=np.full(p, np.nan),
             statistic=np.zeros(f, dtype=np.float32), independent=True, repeated_rows=0, channel_repeats=np.zeros(p, dtype=np.int64),
-            noise_correlation=np.full(p, np.nan), correlation_dof=0,
+            noise_correlation=np.full(p, np.nan), correlation_dof=0, correlation_rows=0,
             interval_times=None if time is None else np.stack([scan.time_at(rows), scan.time_at(rows)], axis=1),
             **common,
         )
@@ -268,7 +270,7 @@ def find_static_intervals(
     for first, stop in intervals:
         mask[first:stop] = True
     repeated, channel_repeats = repeats_within(readings, intervals, chunk_rows)
-    correlation, correlation_dof = noise_correlation(readings, intervals, window_rows, chunk_rows)
+    correlation, correlation_dof = noise_correlation(readings, intervals, correlation_batch_rows(intervals, window_rows), chunk_rows)
     times = None
     if time is not None:
         times = np.stack([scan.time_at(intervals[:, 0]), scan.time_at(intervals[:, 1] - 1)], axis=1)
@@ -276,6 +278,7 @@ def find_static_intervals(
         mask=mask, intervals=intervals, noise_floor=floor, statistic=statistic, independent=False,
         repeated_rows=repeated, channel_repeats=channel_repeats,
         noise_correlation=correlation, correlation_dof=correlation_dof,
+        correlation_rows=correlation_batch_rows(intervals, window_rows),
         interval_times=times, **common,
     )
 
@@ -479,6 +482,15 @@ def repeats_within(readings: Rows, intervals: np.ndarray, chunk_rows: int) -> tu
             repeated += int(same.all(axis=1).sum())
             channel_repeats += same.sum(axis=0)
     return repeated, channel_repeats
+
+
+def correlation_batch_rows(intervals: np.ndarray, window_rows: int) -> int:
+    """The batch length :func:`noise_correlation` is measured over: the detector's window, or half the median interval
+    where that is shorter (a minimum duration under two windows), so that most intervals hold two batches; at least 2."""
+    if not len(intervals):
+        return max(2, window_rows)
+    median = int(np.median(intervals[:, 1] - intervals[:, 0]))
+    return max(2, min(window_rows, median // 2))
 
 
 def noise_correlation(readings: Rows, intervals: np.ndarray, batch_rows: int, chunk_rows: int) -> tuple[np.ndarray, int]:

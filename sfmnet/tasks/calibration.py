@@ -70,7 +70,7 @@ class CalibrationTask(Task):
         )
         # Repeated rows are correlated noise too: one warning says so, the one that names the cause.
         correlated = None if detection is None or repeats else correlated_noise_warning(
-            detection.noise_correlation, detection.correlation_dof, detection.window_words()
+            detection.noise_correlation, detection.correlation_dof, detection.correlation_words(), data.channels
         )
         rows_dependent = [warning for warning in (repeats, correlated) if warning]
         warnings = [*data.warnings, *model.fit_warnings, *warnings, *rows_dependent]

@@ -19,7 +19,7 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
 
     Returns:
         the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, ``static/time_gaps`` and
-        ``static/repeated_rows``, ``static/noise_correlation`` (the channels' mean of
+        ``static/repeated_rows``, ``static/noise_correlation`` (the worst channel's
         :attr:`~sfmnet.preprocessing.static_intervals.StaticIntervals.noise_correlation`, where measured), and the console line (empty and None without detection).
     """
     detection = data.static_intervals
@@ -40,7 +40,7 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
     }
     measured = detection.noise_correlation[np.isfinite(detection.noise_correlation)]
     if len(measured):
-        metrics["static/noise_correlation"] = float(measured.mean())
+        metrics["static/noise_correlation"] = float(measured.max())
     return metrics, line
 
 
