@@ -270,15 +270,15 @@ def find_static_intervals(
     for first, stop in intervals:
         mask[first:stop] = True
     repeated, channel_repeats = repeats_within(readings, intervals, chunk_rows)
-    correlation, correlation_dof = noise_correlation(readings, intervals, correlation_batch_rows(intervals, window_rows), chunk_rows)
+    batch_rows = correlation_batch_rows(intervals, window_rows)
+    correlation, correlation_dof = noise_correlation(readings, intervals, batch_rows, chunk_rows)
     times = None
     if time is not None:
         times = np.stack([scan.time_at(intervals[:, 0]), scan.time_at(intervals[:, 1] - 1)], axis=1)
     return StaticIntervals(
         mask=mask, intervals=intervals, noise_floor=floor, statistic=statistic, independent=False,
         repeated_rows=repeated, channel_repeats=channel_repeats,
-        noise_correlation=correlation, correlation_dof=correlation_dof,
-        correlation_rows=correlation_batch_rows(intervals, window_rows),
+        noise_correlation=correlation, correlation_dof=correlation_dof, correlation_rows=batch_rows,
         interval_times=times, **common,
     )
 
