@@ -264,7 +264,7 @@ def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int
     )
 
 
-def correlated_noise_warning(ratios: np.ndarray, dof: int, batch: str, channels: list[str]) -> str | None:
+def correlated_noise_warning(ratio: float, dof: int, batch: str, channel: str) -> str | None:
     """A warning when the noise within the static intervals is correlated in time, or None.
 
     Error bars count every row as an independent measurement; where means over a few consecutive rows vary more
@@ -274,18 +274,13 @@ def correlated_noise_warning(ratios: np.ndarray, dof: int, batch: str, channels:
     enters every entry of the calibration that reads it.
 
     Args:
-        ratios: ``p``, per channel (NaN: not measured); dof: their batch means' degrees of freedom;
-        batch: the batch, in words (``51 rows (0.51 s)``); channels: the ``p`` channels' names.
+        ratio: the worst channel's figure; dof: the batch means' degrees of freedom;
+        batch: the batch, in words (``51 rows (0.51 s)``); channel: the worst channel's name.
     """
-    measured = np.where(np.isfinite(ratios), ratios, -np.inf)
-    if dof <= 0 or not np.isfinite(measured).any():
-        return None
-    worst = int(np.argmax(measured))
-    ratio = float(measured[worst])
-    if ratio <= MAX_NOISE_CORRELATION or ratio - 1 <= NOISE_CORRELATION_SIGMAS * math.sqrt(2 / dof):
+    if dof <= 0 or ratio <= MAX_NOISE_CORRELATION or ratio - 1 <= NOISE_CORRELATION_SIGMAS * math.sqrt(2 / dof):
         return None
     return (
-        f"the noise within the static intervals is correlated in time: on channel {channels[worst]}, means over {batch} "
+        f"the noise within the static intervals is correlated in time: on channel {channel}, means over {batch} "
         f"vary {ratio:.1f}x as much as independent rows' would (tremor, vibration, drift within a hold, a filtered or "
         f"oversampled sensor), so the error bars, which count every row as independent, are up to {math.sqrt(ratio):.1f}x "
         "too small, more where the correlation outlasts the batch; scale them by that factor or more before using them. "

@@ -135,6 +135,12 @@ class StaticIntervals:
     def rows_kept(self) -> int:
         return int(self.mask.sum())
 
+    @property
+    def most_correlated_channel(self) -> int | None:
+        """The channel whose :attr:`noise_correlation` is largest, or None where none was measured."""
+        measured = np.where(np.isfinite(self.noise_correlation), self.noise_correlation, -np.inf)
+        return int(np.argmax(measured)) if np.isfinite(measured).any() else None
+
     def correlation_words(self) -> str:
         """The batch of :attr:`noise_correlation` in words: ``51 rows (0.51 s)``, or ``25 rows`` without time."""
         seconds = "" if self.period is None else f" ({self.correlation_rows * self.period:.3g} s)"

@@ -69,8 +69,10 @@ class CalibrationTask(Task):
             detection.repeated_rows, detection.channel_repeats, detection.rows_kept - detection.count
         )
         # Repeated rows are correlated noise too: one warning says so, the one that names the cause.
-        correlated = None if detection is None or repeats else correlated_noise_warning(
-            detection.noise_correlation, detection.correlation_dof, detection.correlation_words(), data.channels
+        worst = None if detection is None or repeats else detection.most_correlated_channel
+        correlated = None if worst is None else correlated_noise_warning(
+            float(detection.noise_correlation[worst]), detection.correlation_dof, detection.correlation_words(),
+            data.channels[worst],
         )
         rows_dependent = [warning for warning in (repeats, correlated) if warning]
         warnings = [*data.warnings, *model.fit_warnings, *warnings, *rows_dependent]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 from lightning.pytorch.loggers import Logger
 
 from sfmnet.data.recording import CalibrationData
@@ -20,7 +19,8 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
     Returns:
         the metrics ``static/intervals``, ``static/rows_kept``, ``static/rows_total``, ``static/time_gaps`` and
         ``static/repeated_rows``, ``static/noise_correlation`` (the worst channel's
-        :attr:`~sfmnet.preprocessing.static_intervals.StaticIntervals.noise_correlation`, where measured), and the console line (empty and None without detection).
+        :attr:`~sfmnet.preprocessing.static_intervals.StaticIntervals.noise_correlation`, where measured), and the
+        console line (empty and None without detection).
     """
     detection = data.static_intervals
     if detection is None:
@@ -38,9 +38,9 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
         "static/time_gaps": float(len(detection.gap_rows)),
         "static/repeated_rows": float(detection.repeated_rows),
     }
-    measured = detection.noise_correlation[np.isfinite(detection.noise_correlation)]
-    if len(measured):
-        metrics["static/noise_correlation"] = float(measured.max())
+    worst = detection.most_correlated_channel
+    if worst is not None:
+        metrics["static/noise_correlation"] = float(detection.noise_correlation[worst])
     return metrics, line
 
 
