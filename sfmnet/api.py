@@ -24,6 +24,7 @@ from sfmnet.errors import SfmnetError
 # Config groups chosen by name (``model="least_squares"``), as on the command line.
 CONFIG_GROUPS = ("model", "optimizer", "trainer")
 TIME_COLUMN = "time"
+POSE_COLUMN = "pose"
 
 
 def default_axis_names(n: int) -> list[str]:
@@ -35,6 +36,7 @@ def calibrate(
     magnitude: float | None = None,
     loads: Any = None,
     time: Any = None,
+    poses: Any = None,
     *,
     channels: Sequence[str] | int | None = None,
     axes: Sequence[str] | int | None = None,
@@ -57,6 +59,9 @@ def calibrate(
             for ``n - 1``); None: no known loads, the frame is arbitrary (an orthogonal transform,
             possibly a reflection: every magnitude right) and ``axes`` names the ``n`` load axes.
         time: ``(f,)`` the rows' time in seconds (turns on static-interval detection), or None.
+        poses: ``(f,)`` the pose each row was held in (numbers, NaN for a row of a pose of its own), or None:
+            ``data.group_column``. A pose's rows share one direction, and a pose held more than once (the first
+            pose again at the end) is checked for drift between its holds.
         channels: the ``p`` channel names (default ``z0, z1, ...``), or their number.
         axes: the ``n`` load axis names, or their number (default ``x, y, z`` for ``n <= 3``, else ``l0, l1, ...``);
             required with ``loads=None``, where they say how many axes there are.
@@ -92,9 +97,9 @@ def calibrate(
         n = known.shape[1]
     channels = list(channels) if channels is not None else [f"z{i}" for i in range(p)]
     axes = list(axes) if axes is not None else default_axis_names(n)
-    if len(channels) != p or len(axes) != n or len({*channels, *axes, TIME_COLUMN}) != p + n + 1:
+    if len(channels) != p or len(axes) != n or len({*channels, *axes, TIME_COLUMN, POSE_COLUMN}) != p + n + 2:
         raise SfmnetError(
-            f"give {p} distinct channel names and {n} distinct axis names (not '{TIME_COLUMN}'), "
+            f"give {p} distinct channel names and {n} distinct axis names (not '{TIME_COLUMN}' or '{POSE_COLUMN}'), "
             f"not channels={channels} and axes={axes}"
         )
     columns = {name: readings[:, i] for i, name in enumerate(channels)}
@@ -112,6 +117,12 @@ def calibrate(
             raise SfmnetError(f"time has shape {stamps.shape} but readings has {f} rows: give one time (s) per reading")
         columns[TIME_COLUMN] = stamps
         data["time_column"] = TIME_COLUMN
+    if poses is not None:
+        labels = as_float_array(poses, "poses", "one pose label (a number) per reading")
+        if labels.shape != (f,):
+            raise SfmnetError(f"poses has shape {labels.shape} but readings has {f} rows: give one pose label per reading")
+        columns[POSE_COLUMN] = labels
+        data["group_column"] = POSE_COLUMN
     from sfmnet.readers.table_file import Table
 
     table = Table(path=Path(data["path"]), columns=columns, text={})

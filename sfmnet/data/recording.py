@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from sfmnet.linalg.frame import MirrorHint
+from sfmnet.preprocessing.revisited_poses import RevisitedPoses
 from sfmnet.preprocessing.static_intervals import StaticIntervals
 
 
@@ -144,6 +145,8 @@ class CalibrationData:
         static_intervals: where a continuous recording was static (its other rows are left out of
             the recordings), or None where every row was taken as static.
         warnings: what the reader noticed in the file (e.g. a channel that looks like a timestamp).
+        revisited_poses: how far apart the holds of poses held more than once are (a group column's labels), or None
+            where no pose was held twice.
     """
 
     recordings: dict[str, CalibrationRecording]
@@ -155,6 +158,7 @@ class CalibrationData:
     truth: SensorTruth | None = None
     static_intervals: StaticIntervals | None = None
     warnings: list[str] = field(default_factory=list)
+    revisited_poses: RevisitedPoses | None = None
 
     def without_group(self, group: int) -> CalibrationData:
         """The data with every recording's rows of ``group`` removed (for leave-one-group-out)."""

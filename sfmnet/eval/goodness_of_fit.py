@@ -25,9 +25,11 @@ import numpy as np
 import torch
 
 from sfmnet.data.rows import IntervalSums
+from sfmnet.linalg.chi_square import chi_square_z
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
 from sfmnet.linalg.uncertainty import relative_matrix_std
+from sfmnet.preprocessing.revisited_poses import RevisitedPoses
 # The fit's residual noise may exceed the within-pose noise by this much before the model is
 # said not to describe the data (it is ~1 for a model that fits, whatever p and n).
 MAX_NOISE_RATIO = 1.5
@@ -57,6 +59,9 @@ MAX_POSE_MISFIT_RATIO = 2.0
 # (those streams at p = 3, 6 and 8, with and without known loads, and tests/test_goodness_and_triads.py's
 # nonlinear_poses) z had mean 0.0-0.2 and standard deviation 1.0-1.3 and never passed 2.4.
 POSE_MISFIT_Z = 3.0
+# Holds of a pose held more than once may differ by this many standard deviations of white noise's chi-square (p ~ 1e-3):
+# on 300 clean simulated sets of 14 holds, 2 poses revisited, z had mean 0.0, standard deviation 0.95, and never passed 2.7.
+REVISIT_Z = 3.0
 # Outliers are a problem once there are more than a handful beyond what the tail itself predicts.
 OUTLIER_ALLOWANCE = 3
 # A calibration as likely as the fit (within LIKELY_NATS, about 2 standard errors along one direction) may
@@ -232,11 +237,9 @@ def pose_misfit_z(poses: PoseMeans, noise: float, parameters: float) -> float:
         poses: :func:`pose_means` of the residuals; noise: ``sigma`` (raw units, within poses).
         parameters: the global parameters the pose means determine.
     """
-    nu = float(poses.dof.sum()) - parameters
-    if nu < 1 or not noise > 0:
+    if not noise > 0:
         return math.nan
-    a = 2 / (9 * nu)
-    return ((float(poses.squares.sum()) / noise**2 / nu) ** (1 / 3) - (1 - a)) / math.sqrt(a)
+    return chi_square_z(float(poses.squares.sum()) / noise**2, float(poses.dof.sum()) - parameters)
 
 
 def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int) -> str | None:
@@ -286,6 +289,31 @@ def correlated_noise_warning(ratio: float, dof: int, batch: str, channel: str) -
         "too small, more where the correlation outlasts the batch; scale them by that factor or more before using them. "
         "Noise does not bias the calibration; motion left inside the intervals reads the same way and does: if the "
         "detection window (data.static.window) is shorter than the moves, lengthen it"
+    )
+
+
+def revisited_pose_warning(revisits: RevisitedPoses, channels: list[str]) -> str | None:
+    """A warning when poses held more than once read differently at each visit beyond what the noise allows, or None.
+
+    Flagged past :data:`REVISIT_Z` (:func:`~sfmnet.preprocessing.revisited_poses.revisited_poses`, eq. D1). The
+    worst pose is named with when its holds began and how far its worst channel moved between them.
+
+    Args:
+        revisits: the figures; channels: the ``p`` channel names.
+    """
+    if not revisits.z > REVISIT_Z:
+        return None
+    times = revisits.worst_start_times
+    when = ", ".join(f"row {row}" for row in revisits.worst_starts) if times is None else ", ".join(f"{t:.4g} s" for t in times)
+    return (
+        f"a pose held more than once reads differently at each visit: over {revisits.poses} revisited "
+        f"pose{'s' if revisits.poses > 1 else ''} the holds' "
+        f"means differ by {revisits.ratio:.2f}x what the noise within them explains (z = {revisits.z:.1f}); pose "
+        f"{revisits.worst_pose:g} (held from {when}) moved {100 * revisits.worst_change:.2g} % of channel "
+        f"{channels[revisits.worst_channel]}'s span. The sensor drifted over the recording (temperature, creep, not warmed "
+        "up) or the pose was not repeated exactly; a drift biases the calibration, which the error bars leave out: let "
+        "the sensor warm up, record faster, or re-tare, and if the pose differed give each hold its own "
+        "data.group_column label"
     )
 
 

@@ -9,6 +9,8 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording, first_magnitude_mismatch
+from sfmnet.preprocessing.revisited_poses import RevisitedPoses, hold_ids, revisited_poses
+from sfmnet.preprocessing.static_intervals import StaticIntervals
 from sfmnet.readers.static_rows import fitted_rows, static_settings
 from sfmnet.readers.table_file import Table, check_finite, read_table
 from sfmnet.errors import SfmnetError
@@ -44,7 +46,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         configurations: six axes: ``{<id>: {mass: <kg>, centre_of_mass: [x, y, z] (m, sensor frame)}}``
             for every id in the configuration column; then ``magnitude``/``mass`` are not used.
         group_column: a column of the pose each row was recorded in: its rows share one direction
-            (``model.tie_directions``), and leave-one-group-out evaluation; an empty cell is a pose of its own.
+            (``model.tie_directions``), and leave-one-group-out evaluation; an empty cell is a pose of its own
+            (:func:`pose_labels`); a pose held more than once is checked for drift (:func:`pose_revisits`).
         gravity: m/s^2, for ``mass`` and ``configurations``.
         static_intervals: leave out the rows in motion of a continuous recording
             (:mod:`sfmnet.readers.static_rows`): None: with a ``time_column``; True: also without
@@ -139,9 +142,9 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 f"{self.path} {table.row_place(int(np.argmax(partial)))} gives only some of {', '.join(self.load_columns)}: "
                 "fill every load column on a known row, or none"
             )
-        groups = None
+        groups, labels, time = None, None, None
         if self.group_column:
-            groups = torch.from_numpy(pose_labels(table.numeric([self.group_column], "group")[:, 0]))
+            labels = table.numeric([self.group_column], "group")[:, 0]
         detection, keep = None, np.ones(len(readings), dtype=bool)
         if self.static is not None:
             time = table.numeric([self.time_column], "time")[:, 0] * self.static.time_scale if self.time_column else None
@@ -151,8 +154,11 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 detection, known, len(self.axes), table.where,
                 check_count=not self.configuration_column,
             )
-            if groups is None and not detection.independent:
-                groups = torch.from_numpy(detection.interval_of_rows())
+            if not detection.independent:
+                groups = torch.from_numpy(detection.interval_of_rows() if labels is None else pose_labels(labels, detection))
+        if labels is not None and groups is None:
+            groups = torch.from_numpy(pose_labels(labels))
+        revisits = None if labels is None else pose_revisits(readings, labels, keep, detection, time)
         # Every row kept (no motion found, or no detection): views, not a copy of every column.
         rows = slice(None) if keep.all() else torch.from_numpy(keep)
         groups = None if groups is None else groups[rows]
@@ -182,6 +188,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         return CalibrationData(
             recordings={"rotation": recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
             static_intervals=detection, test=test, warnings=monotonic_channel_warnings(readings, channels, "the file's rows"),
+            revisited_poses=revisits,
         )
 
     def named_columns(self) -> dict[str, list[str]]:
@@ -255,14 +262,37 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         return MirrorHint(sample=int(unknown[:row].sum()), axis=axis, sign=sign, axis_name=self.load_columns[axis])
 
 
-def pose_labels(values: np.ndarray) -> np.ndarray:
-    """``f`` int64 labels 0..k-1 of a pose column's values, a row with an empty cell a pose of its own (its rows'
-    directions are tied: a missing label must not tie every unlabelled row to one direction)."""
-    values = values.copy()
+def pose_revisits(
+    readings: np.ndarray, labels: np.ndarray, keep: np.ndarray, detection: StaticIntervals | None, time: np.ndarray | None
+) -> RevisitedPoses | None:
+    """:func:`~sfmnet.preprocessing.revisited_poses.revisited_poses` of the rows fitted (``keep``): a hold is a run of
+    rows with one pose label, within one static interval where a stream was split into them."""
+    intervals = None if detection is None or detection.independent else detection.interval_of_rows()[keep]
+    return revisited_poses(
+        readings[keep],
+        labels[keep],
+        hold_ids(labels[keep], intervals),
+        None if detection is None else detection.noise_correlation,
+        None if time is None else time[keep],
+    )
+
+
+def pose_labels(values: np.ndarray, detection: StaticIntervals | None = None) -> np.ndarray:
+    """``f`` int64 labels 0..k-1 of a pose column's values (its rows' directions are tied). A row with an empty cell
+    is a pose of its own (a missing label must not tie every unlabelled row to one direction), except within a static
+    interval of ``detection``, whose unlabelled rows are one pose, as with no pose column: a label that starts after
+    the hold or ends before the move (the detector's interval reaching a row or two into it) leaves its edge rows in
+    the hold's pose, not each with a direction resting on one row."""
     missing = np.isnan(values)
-    top = values[~missing].max() if (~missing).any() else 0.0
-    values[missing] = top + 1 + np.arange(int(missing.sum()))
-    return np.unique(values, return_inverse=True)[1].reshape(-1)
+    # Codes, not the values plus one: a label of 1e20 plus one is itself.
+    codes = np.zeros(len(values), dtype=np.int64)
+    codes[~missing] = np.unique(values[~missing], return_inverse=True)[1].reshape(-1)
+    first_free = int(codes[~missing].max()) + 1 if (~missing).any() else 0
+    interval = np.full(len(values), -1) if detection is None else detection.interval_of_rows()
+    alone = missing & (interval < 0)
+    codes[missing & ~alone] = first_free + interval[missing & ~alone]
+    codes[alone] = first_free + len(values) + np.arange(int(alone.sum()))
+    return np.unique(codes, return_inverse=True)[1].reshape(-1)
 
 
 def load_axes(load_columns: list[str], axes: list[str] | None) -> list[str]:

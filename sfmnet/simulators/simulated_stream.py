@@ -35,7 +35,7 @@ class ContinuousRecording:
         known_loads: ``f x 3`` N, the loads as a user would write them: filled on the static rows of
             the known poses, NaN elsewhere.
         static: ``f`` bool, the rows where the mass is held still (the true static mask).
-        pose: ``f`` long, each row's pose index (-1 while moving).
+        pose: ``f`` long, each row's pose index (-1 while moving; a pose revisited at the end keeps its index).
     """
 
     time: torch.Tensor
@@ -141,6 +141,9 @@ def simulate_stream(
     known_poses: int = 3,
     orientation: str = "uniform",
     reach: float = 0.4,
+    revisit: bool = False,
+    gain_drift: float = 0.0,
+    offset_drift: float = 0.0,
     generator: torch.Generator | None = None,
 ) -> ContinuousRecording:
     """Carry ``mass`` (kg) on ``sensor`` through ``poses`` orientations, recording at ``rate`` Hz.
@@ -152,6 +155,11 @@ def simulate_stream(
             sequence); their static rows carry the true load in :attr:`ContinuousRecording.known_loads`.
         orientation: the law of the other poses' orientations (:func:`random_rotations`).
         reach: the sensor's position is drawn uniformly in a cube of this side (m) for each pose.
+        revisit: return to the first pose at the end and hold it again (its rows labelled pose 0 again).
+        gain_drift: the sensor's gain grows linearly by this fraction from the first row to the last (a temperature
+            drift), so that a revisited pose reads differently.
+        offset_drift: each channel's offset moves linearly by this fraction of the channel's full-load signal
+            (``mass g |S_c|``) from the first row to the last.
     """
     generator = generator or torch.Generator().manual_seed(0)
     rotations = random_rotations(poses + 1, orientation, generator)
@@ -162,10 +170,12 @@ def simulate_stream(
     for k, pose in enumerate(known):
         rotations[1 + pose] = jig[k % 3]
     positions = reach * torch.rand(poses + 1, 3, generator=generator, dtype=DTYPE)
+    if revisit:
+        rotations, positions = torch.cat([rotations, rotations[1:2]]), torch.cat([positions, positions[1:2]])
     step = 1.0 / rate
     time, orientation_rows, acceleration, pose_rows = [], [], [], []
     clock = 0.0
-    for k in range(poses):
+    for k in range(len(rotations) - 1):
         # Move from waypoint k (the start, or pose k - 1) into pose k, then hold it.
         moving = torch.arange(round(move * rate), dtype=DTYPE) * step
         s, s2 = minimum_jerk(moving / move)
@@ -176,7 +186,7 @@ def simulate_stream(
         orientation_rows.append(rotations[k + 1].expand(len(holding), 3, 3))
         acceleration.append(torch.zeros(len(holding), 3, dtype=DTYPE))
         time.append(torch.cat([clock + moving, clock + move + holding]))
-        pose_rows.append(torch.cat([torch.full((len(moving),), -1), torch.full((len(holding),), k)]))
+        pose_rows.append(torch.cat([torch.full((len(moving),), -1), torch.full((len(holding),), k % poses)]))
         clock += move + hold
     rotation = torch.cat(orientation_rows)
     # The sensor carries the mass: it feels m (g - a), written in the sensor frame (R^T v).
@@ -187,22 +197,32 @@ def simulate_stream(
     known_rows = static & torch.isin(pose, torch.tensor(known))
     believed = torch.full_like(loads, float("nan"))
     believed[known_rows] = loads[known_rows]
+    time = torch.cat(time)
+    elapsed = (time / time[-1])[:, None]
+    full_load = mass * STANDARD_GRAVITY * sensor.shape.norm(dim=0)
+    readings = sensor.read(loads, generator) + elapsed * (gain_drift * loads @ sensor.shape + offset_drift * full_load)
     return ContinuousRecording(
-        time=torch.cat(time), readings=sensor.read(loads, generator), loads=loads, known_loads=believed,
-        static=static, pose=pose,
+        time=time, readings=readings, loads=loads, known_loads=believed, static=static, pose=pose,
     )
 
 
-def write_stream_csv(recording: ContinuousRecording, path: Path, rows: torch.Tensor | None = None) -> None:
+def write_stream_csv(
+    recording: ContinuousRecording, path: Path, rows: torch.Tensor | None = None, pose_column: bool = False
+) -> None:
     """The recording as a CSV: ``time``, ``s0 ... s{p-1}``, ``fx, fy, fz`` (empty where the load is unknown).
 
     Args:
         rows: ``f`` bool, the rows to write (default all).
+        pose_column: add a ``pose`` column, each row's pose (empty while moving), for ``data.group_column``.
     """
     keep = torch.ones(len(recording.time), dtype=torch.bool) if rows is None else rows
     p = recording.readings.shape[1]
     with Path(path).open("w", newline="") as stream:
         writer = csv.writer(stream)
-        writer.writerow(["time", *(f"s{i}" for i in range(p)), "fx", "fy", "fz"])
-        for t, z, f in zip(recording.time[keep].tolist(), recording.readings[keep].tolist(), recording.known_loads[keep].tolist()):
-            writer.writerow([f"{t:.4f}", *(f"{v:.9g}" for v in z), *("" if math.isnan(v) else f"{v:.6f}" for v in f)])
+        writer.writerow(["time", *(f"s{i}" for i in range(p)), "fx", "fy", "fz", *(["pose"] if pose_column else [])])
+        for t, z, f, k in zip(
+            recording.time[keep].tolist(), recording.readings[keep].tolist(), recording.known_loads[keep].tolist(),
+            recording.pose[keep].tolist(),
+        ):
+            pose = ([str(k) if k >= 0 else ""] if pose_column else [])
+            writer.writerow([f"{t:.4f}", *(f"{v:.9g}" for v in z), *("" if math.isnan(v) else f"{v:.6f}" for v in f), *pose])

@@ -22,7 +22,7 @@ from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import method_title, motion_figure, spectrum_figure
 from sfmnet.eval.held_out import load_errors, magnitude_errors
-from sfmnet.eval.goodness_of_fit import correlated_noise_warning, repeated_rows_warning
+from sfmnet.eval.goodness_of_fit import correlated_noise_warning, repeated_rows_warning, revisited_pose_warning
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.linalg.uncertainty import relative_matrix_std
 from sfmnet.models.linear_calibrator import LinearCalibrator
@@ -74,7 +74,9 @@ class CalibrationTask(Task):
             float(detection.noise_correlation[worst]), detection.correlation_dof, detection.correlation_words(),
             data.channels[worst],
         )
-        rows_dependent = [warning for warning in (repeats, correlated) if warning]
+        revisits = data.revisited_poses
+        drift = None if revisits is None else revisited_pose_warning(revisits, data.channels)
+        rows_dependent = [warning for warning in (repeats, correlated, drift) if warning]
         warnings = [*data.warnings, *model.fit_warnings, *warnings, *rows_dependent]
         # The error bars assume the model, independent rows and a fit that worked; a failed check or fit says they
         # cannot be believed.
@@ -103,6 +105,10 @@ class CalibrationTask(Task):
             "epochs": float(fitted.trainer.current_epoch),
             **diagnostics,
         }
+        if revisits is not None:
+            metrics.update(
+                {"goodness/revisit_ratio": revisits.ratio, "goodness/revisit_z": revisits.z, "goodness/poses_revisited": float(revisits.poses)}
+            )
         if uncertainty.frame_share is not None:
             metrics["matrix_std_frame_share"] = uncertainty.frame_share
             metrics["known_load_rows"] = float(recording.known.sum())

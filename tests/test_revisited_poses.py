@@ -1,0 +1,109 @@
+"""Pose labels on a continuous recording: a pose held more than once is checked for drift between its holds
+(sfmnet/preprocessing/revisited_poses.py), and rows of a static interval left unlabelled are tied to it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import sfmnet
+from sfmnet.calibration import calibration_matrix
+from sfmnet.eval.goodness_of_fit import REVISIT_Z
+from sfmnet.preprocessing.revisited_poses import hold_ids, revisited_poses
+from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor
+
+# 12 poses of 50 rows, then poses 0 and 5 held again.
+POSE_SEQUENCE = np.repeat(np.r_[np.arange(12), 0, 5].astype(float), 50)
+
+
+def held_readings(generator: np.random.Generator, drift: float = 0.0, correlation: float = 0.0) -> np.ndarray:
+    """Three channels of unequal noise (AR(1) of lag-one ``correlation``) about each pose's reading, plus ``drift``
+    times the row's fraction of the recording on every channel."""
+    truth = generator.normal(size=(12, 3)) * 10
+    white = generator.normal(size=(len(POSE_SEQUENCE), 3))
+    noise = white.copy()
+    for row in range(1, len(noise)):
+        noise[row] = correlation * noise[row - 1] + np.sqrt(1 - correlation**2) * white[row]
+    ramp = np.linspace(0, 1, len(POSE_SEQUENCE))[:, None]
+    return truth[POSE_SEQUENCE.astype(int)] + noise * np.array([1.0, 2.0, 0.5]) + drift * ramp
+
+
+def test_holds_are_runs_of_one_label_within_one_interval():
+    labels = np.array([3.0, 3, 3, 7, 7, 3, 3, np.nan, np.nan])
+    assert hold_ids(labels, None).tolist() == [0, 0, 0, 1, 1, 2, 2, 3, 4]
+    # A static interval ending between two rows of one label splits the hold.
+    intervals = np.array([0, 0, 1, 1, 1, 1, 1, 2, 2])
+    assert hold_ids(labels, intervals).tolist() == [0, 0, 1, 2, 2, 3, 3, 4, 5]
+
+
+def test_holds_that_differ_by_noise_alone_pass_and_a_drift_is_caught():
+    generator = np.random.default_rng(0)
+    holds = hold_ids(POSE_SEQUENCE, None)
+    z = np.array([revisited_poses(held_readings(generator), POSE_SEQUENCE, holds).z for _ in range(200)])
+    # Under white noise z is standard normal: the limit leaves about 1 run in 1,000 flagged.
+    assert abs(z.mean()) < 0.2 and 0.8 < z.std() < 1.2 and (z > REVISIT_Z).sum() <= 1
+    figures = revisited_poses(held_readings(generator, drift=2.0), POSE_SEQUENCE, holds)
+    assert figures.z > REVISIT_Z and figures.poses == 2 and figures.holds == 4 and figures.dof == 6
+    # Pose 0 spans the whole recording, so it moved furthest; the drift is equal on every channel, the least noisy
+    # channel shows it best against its span.
+    assert figures.worst_pose == 0 and figures.worst_starts == [0, 600]
+
+
+def test_noise_correlated_within_a_hold_is_not_taken_for_drift():
+    generator = np.random.default_rng(1)
+    holds = hold_ids(POSE_SEQUENCE, None)
+    readings = [held_readings(generator, correlation=0.8) for _ in range(30)]
+    # AR(0.8): a hold's mean varies (1 + 0.8) / (1 - 0.8) = 9x what independent rows' would.
+    naive = [revisited_poses(r, POSE_SEQUENCE, holds).z for r in readings]
+    scaled = [revisited_poses(r, POSE_SEQUENCE, holds, correlation=np.full(3, 9.0)).z for r in readings]
+    assert np.mean(np.array(naive) > REVISIT_Z) > 0.5
+    assert max(scaled) < REVISIT_Z
+
+
+def test_no_pose_held_twice_gives_no_figures():
+    labels = np.repeat(np.arange(12.0), 50)
+    readings = np.random.default_rng(2).normal(size=(len(labels), 3))
+    assert revisited_poses(readings, labels, hold_ids(labels, None)) is None
+
+
+def revisiting_stream(drift: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A 3-channel sensor (p = n) held at 12 poses and the first again at the end, its gain drifting by ``drift``
+    over the recording; the rows in motion are not logged. Readings, known loads, time and pose labels."""
+    generator = torch.Generator().manual_seed(0)
+    sensor = stream_sensor(3, 9.81, 0.01, 0.2, generator)
+    recording = simulate_stream(sensor, 1.0, poses=12, rate=50.0, revisit=True, gain_drift=drift, generator=generator)
+    static = recording.static
+    return (
+        recording.readings[static].numpy(), recording.known_loads[static].numpy(), recording.time[static].numpy(),
+        recording.pose[static].numpy().astype(float),
+    )
+
+
+@pytest.mark.parametrize("drift", [0.0, 0.01])
+def test_a_drift_hidden_by_tying_a_revisited_pose_is_flagged(drift: float):
+    readings, loads, time, poses = revisiting_stream(drift)
+    labelled = sfmnet.calibrate(readings, 9.81, loads, time, poses)
+    drift_warnings = [warning for warning in labelled.warnings if "reads differently at each visit" in warning]
+    if drift:
+        # Tied into one pose, the revisit's drift passes every other check: only this one sees it.
+        assert drift_warnings == labelled.warnings and not labelled.error_bars_trustworthy
+        assert "pose 0 (held from 1.5 s, 43.5 s)" in drift_warnings[0]
+    else:
+        assert labelled.error_bars_trustworthy and not labelled.warnings
+
+
+def test_unlabelled_rows_at_the_edges_of_a_hold_are_tied_to_it():
+    """The simulator labels only the rows it held still; the detector's intervals reach a row or two into each move.
+    Each such row a pose of its own, one row per direction, had pulled `auto` to the marginal on this 3-channel
+    sensor: 26x its bars (flagged) where the same stream without labels is 0.67x."""
+    generator = torch.Generator().manual_seed(3)
+    sensor = stream_sensor(3, 9.81, 0.01, 0.2, generator)
+    recording = simulate_stream(sensor, 1.0, poses=12, rate=50.0, generator=generator)
+    labels = recording.pose.double().numpy()
+    labels[labels < 0] = np.nan
+    arrays = (recording.readings.numpy(), 9.81, recording.known_loads.numpy(), recording.time.numpy())
+    unlabelled, labelled = sfmnet.calibrate(*arrays), sfmnet.calibrate(*arrays, labels)
+    truth = calibration_matrix(sensor.shape)
+    errors = [float((calibration.matrix - truth).norm() / calibration.matrix_std.norm()) for calibration in (unlabelled, labelled)]
+    assert labelled.error_bars_trustworthy and errors[1] < 1.2 * errors[0] < 1.5
