@@ -59,8 +59,11 @@ MAX_POSE_MISFIT_RATIO = 2.0
 # (those streams at p = 3, 6 and 8, with and without known loads, and tests/test_goodness_and_triads.py's
 # nonlinear_poses) z had mean 0.0-0.2 and standard deviation 1.0-1.3 and never passed 2.4.
 POSE_MISFIT_Z = 3.0
-# Holds of a pose held more than once may differ by this many standard deviations of white noise's chi-square (p ~ 1e-3):
-# on 300 clean simulated sets of 14 holds, 2 poses revisited, z had mean 0.0, standard deviation 0.95, and never passed 2.7.
+# Holds of a pose held more than once may differ by this many standard deviations of what noise allows (p ~ 1e-3): on 100
+# simulated sets of 14 holds of 50 rows (2 poses revisited) under white noise z had mean -0.2, standard deviation 0.84 and
+# never passed 1.7; with AR(1) noise of lag-one correlation 0.8 over 200-row holds and 0.95 over 500-row ones, mean
+# 0.1-0.2 and never past 2.5. Noise correlated over much of a hold is not told from drift: AR(0.95) over 100-row holds
+# passed 3 in 11 of 100 (its hold means do vary more than the rows within them say, and the error bars are too small).
 REVISIT_Z = 3.0
 # Outliers are a problem once there are more than a handful beyond what the tail itself predicts.
 OUTLIER_ALLOWANCE = 3
@@ -311,9 +314,10 @@ def revisited_pose_warning(revisits: RevisitedPoses, channels: list[str]) -> str
         f"means differ by {revisits.ratio:.2f}x what the noise within them explains (z = {revisits.z:.1f}); pose "
         f"{revisits.worst_pose:g} (held from {when}) moved {100 * revisits.worst_change:.2g} % of channel "
         f"{channels[revisits.worst_channel]}'s span. The sensor drifted over the recording (temperature, creep, not warmed "
-        "up) or the pose was not repeated exactly; a drift biases the calibration, which the error bars leave out: let "
-        "the sensor warm up, record faster, or re-tare, and if the pose differed give each hold its own "
-        "data.group_column label"
+        "up), the pose was not repeated exactly, or the noise is correlated over much of a hold (then "
+        "static/noise_correlation is high too); each leaves the error bars too small, and a drift biases the "
+        "calibration: let the sensor warm up, record faster, or re-tare, and if the pose differed give each hold its "
+        "own data.group_column label"
     )
 
 

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sfmnet.linalg.chi_square import chi_square_z
+from sfmnet.linalg.chi_square import f_ratio_z
+from sfmnet.preprocessing.static_intervals import CHUNK_ROWS, noise_correlation
 
 
 @dataclass(frozen=True)
@@ -23,7 +24,7 @@ class RevisitedPoses:
 
     Attributes:
         ratio: ``sqrt(T / dof)`` (eq. D1): 1 when the holds of a pose differ by noise alone.
-        z: how many standard deviations ``T`` lies above ``chi2(dof)`` (Wilson-Hilferty), ~N(0, 1) then.
+        z: how many standard deviations ``T / dof`` lies above ``F(dof, nu)``'s expectation, ~N(0, 1) then.
         dof: ``p * sum_g (H_g - 1)`` (``p``: the rank of the noise's covariance within holds).
         poses: the poses held more than once.
         holds: the holds of those poses.
@@ -62,26 +63,23 @@ def hold_ids(labels: np.ndarray, intervals: np.ndarray | None) -> np.ndarray:
 
 
 def revisited_poses(
-    readings: np.ndarray,
-    labels: np.ndarray,
-    holds: np.ndarray,
-    correlation: np.ndarray | None = None,
-    time: np.ndarray | None = None,
+    readings: np.ndarray, labels: np.ndarray, holds: np.ndarray, time: np.ndarray | None = None
 ) -> RevisitedPoses | None:
     """Compare the holds of every pose held more than once (eq. D1).
 
     ``T = sum_g sum_{h in g} n_h (zbar_h - zbar_g)^T W^-1 (zbar_h - zbar_g)``, with ``zbar_h`` a hold's mean reading,
     ``zbar_g`` its pose's (weighted by rows), ``n_h`` its rows and ``W`` the readings' covariance within holds
     (pooled over every hold), is ``chi2(p sum_g (H_g - 1))`` when a pose reads the same at each visit up to white
-    noise. Noise correlated in time makes a hold's mean vary more than ``W / n_h``; ``correlation`` (per channel, the
-    variance of a short batch's mean over independent rows', :func:`~sfmnet.preprocessing.static_intervals.noise_correlation`)
-    scales ``W`` up by that much, so that what is left is slower than the batch: drift.
+    noise. Noise correlated in time makes a hold's mean vary ``tau`` times more than ``W / n_h``: ``W`` is scaled by
+    each channel's ``max(tau, 1)``, measured over the holds themselves by batch means a quarter of the median hold long
+    (:func:`~sfmnet.preprocessing.static_intervals.noise_correlation`, eq. N1), so that what is left is slower than a
+    hold. ``T / dof`` is then ``F(dof, nu)`` with ``nu`` the batch means' degrees of freedom (the noise's size
+    estimated, not known), scored by :func:`~sfmnet.linalg.chi_square.f_ratio_z`.
 
     Args:
         readings: ``f x p`` raw units, the rows fitted, in recording order.
         labels: ``f`` the pose of each row (the file's labels; NaN cells are poses of their own, never revisited).
-        holds: ``f`` int, each row's hold (:func:`hold_ids`).
-        correlation: ``p`` or None; values under 1 or not finite count as 1.
+        holds: ``f`` int, each row's hold (:func:`hold_ids`): runs of consecutive rows.
         time: ``f`` seconds, or None.
 
     Returns:
@@ -103,9 +101,12 @@ def revisited_poses(
     means = np.stack([np.bincount(index, shifted[:, c], minlength=count) for c in range(p)], axis=1) / rows[:, None]
     deviation = shifted - means[index]
     within = deviation.T @ deviation / (f - count)
-    if correlation is not None:
-        scale = np.sqrt(np.where(np.isfinite(correlation), np.maximum(correlation, 1.0), 1.0))
-        within = within * np.outer(scale, scale)
+    # Measured over the labelled holds, not the detector's intervals: an interval that merged two holds and the move
+    # between them would read as strongly correlated noise and switch the check off.
+    spans = np.stack([first, first + rows.astype(np.int64)], axis=1)
+    correlation, noise_dof = noise_correlation(shifted, spans, max(2, int(np.median(rows)) // 4), CHUNK_ROWS)
+    scale = np.sqrt(np.where(np.isfinite(correlation), np.maximum(correlation, 1.0), 1.0))
+    within = within * np.outer(scale, scale)
     # A channel that is a combination of others (or constant within holds) adds no degree of freedom.
     inverse, rank = np.linalg.pinv(within, hermitian=True), int(np.linalg.matrix_rank(within, hermitian=True))
     if rank == 0:
@@ -127,7 +128,7 @@ def revisited_poses(
     starts = [int(first[m]) for m in members]
     return RevisitedPoses(
         ratio=math.sqrt(total / dof),
-        z=chi_square_z(total, dof),
+        z=f_ratio_z(total / dof, dof, noise_dof if noise_dof > 0 else math.inf),
         dof=dof,
         poses=len(revisited),
         holds=int(sum(int((hold_label == label).sum()) for label in revisited)),

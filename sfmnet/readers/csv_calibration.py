@@ -158,7 +158,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 groups = torch.from_numpy(detection.interval_of_rows() if labels is None else pose_labels(labels, detection))
         if labels is not None and groups is None:
             groups = torch.from_numpy(pose_labels(labels))
-        revisits = None if labels is None else pose_revisits(readings, labels, keep, detection, time)
+        revisits, unvisited = (None, []) if labels is None else pose_revisits(readings, labels, keep, detection, time)
         # Every row kept (no motion found, or no detection): views, not a copy of every column.
         rows = slice(None) if keep.all() else torch.from_numpy(keep)
         groups = None if groups is None else groups[rows]
@@ -187,7 +187,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             recording, test = self.hold_out_alternate_groups(recording)
         return CalibrationData(
             recordings={"rotation": recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
-            static_intervals=detection, test=test, warnings=monotonic_channel_warnings(readings, channels, "the file's rows"),
+            static_intervals=detection, test=test,
+            warnings=[*monotonic_channel_warnings(readings, channels, "the file's rows"), *unvisited],
             revisited_poses=revisits,
         )
 
@@ -264,17 +265,29 @@ class CsvCalibrationDataModule(CalibrationDataModule):
 
 def pose_revisits(
     readings: np.ndarray, labels: np.ndarray, keep: np.ndarray, detection: StaticIntervals | None, time: np.ndarray | None
-) -> RevisitedPoses | None:
+) -> tuple[RevisitedPoses | None, list[str]]:
     """:func:`~sfmnet.preprocessing.revisited_poses.revisited_poses` of the rows fitted (``keep``): a hold is a run of
-    rows with one pose label, within one static interval where a stream was split into them."""
+    rows with one pose label, within one static interval where a stream was split into them. And a note where a pose
+    labelled in several runs of rows kept fewer than two holds (a revisit too short for a static interval), so the
+    check a user arranged for is not skipped in silence."""
     intervals = None if detection is None or detection.independent else detection.interval_of_rows()[keep]
-    return revisited_poses(
-        readings[keep],
-        labels[keep],
-        hold_ids(labels[keep], intervals),
-        None if detection is None else detection.noise_correlation,
-        None if time is None else time[keep],
-    )
+    holds = hold_ids(labels[keep], intervals)
+    revisits = revisited_poses(readings[keep], labels[keep], holds, None if time is None else time[keep])
+    notes = []
+    if not keep.all():
+        labelled = ~np.isnan(labels)
+        runs = hold_ids(labels, None)
+        visits = {float(label): len(np.unique(runs[labels == label])) for label in np.unique(labels[labelled])}
+        kept = {float(label): len(np.unique(holds[labels[keep] == label])) for label in np.unique(labels[keep & labelled])}
+        lost = [label for label, count in visits.items() if count > 1 and kept.get(label, 0) < 2]
+        if lost:
+            names = ", ".join(f"{label:g}" for label in lost[:5]) + (" ..." if len(lost) > 5 else "")
+            notes.append(
+                f"pose{'s' if len(lost) > 1 else ''} {names} {'are' if len(lost) > 1 else 'is'} labelled in separate "
+                "runs of rows (held more than once), but fewer than two of those holds were kept as static intervals, "
+                "so they were not compared for drift: hold each visit longer than data.static.min_duration"
+            )
+    return revisits, notes
 
 
 def pose_labels(values: np.ndarray, detection: StaticIntervals | None = None) -> np.ndarray:
