@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import re
 from unittest import mock
 
 import numpy as np
@@ -97,7 +98,7 @@ def test_a_drift_hidden_by_tying_a_revisited_pose_is_flagged(drift: float):
     if drift:
         # Tied into one pose, the revisit's drift passes every other check: only this one sees it.
         assert drift_warnings == labelled.warnings and not labelled.error_bars_trustworthy
-        assert "pose 0 (held from 1.5 s, 43.5 s)" in drift_warnings[0]
+        assert "pose 0 (holds starting at 1.5 s, 43.5 s)" in drift_warnings[0]
     else:
         assert labelled.error_bars_trustworthy and not labelled.warnings
 
@@ -126,3 +127,12 @@ def test_a_revisit_too_short_to_be_kept_is_named_not_skipped_in_silence():
     keep[revisit[revisit > revisit[0] + 200][10:]] = False
     calibration = sfmnet.calibrate(readings[keep], 9.81, loads[keep], time[keep], poses[keep])
     assert any("pose 0 is labelled in separate runs" in warning for warning in calibration.warnings)
+
+
+def test_without_a_time_column_the_revisit_is_named_by_the_files_rows():
+    readings, loads, _, poses = revisiting_stream(0.01)
+    # Detected in row order, the intervals' edges trimmed: the row named is still the file's, inside the revisit.
+    calibration = sfmnet.calibrate(readings, 9.81, loads, None, poses, **{"data.static_intervals": True})
+    warning = next(w for w in calibration.warnings if "reads differently at each visit" in w)
+    first, revisit = (int(row) for row in re.search(r"data rows (\d+), (\d+)\)", warning).groups())
+    assert poses[first] == poses[revisit] == 0 and revisit >= 1200

@@ -30,7 +30,7 @@ class RevisitedPoses:
         holds: the holds of those poses.
         worst_pose: the label (as in the file) of the pose whose holds are furthest apart, per degree of freedom.
         worst_ratio: that pose's own ``sqrt(T_g / dof_g)``.
-        worst_starts: the first row of each of its holds (0-based rows of the file's kept rows' order).
+        worst_starts: the first row of each of its holds (0-based, of the rows given; the reader makes them the file's).
         worst_start_times: the time of those rows (seconds), or None without a time column.
         worst_channel: the channel whose mean moves most between its holds, against the channel's span.
         worst_change: that move as a fraction of the channel's span over every hold's mean.

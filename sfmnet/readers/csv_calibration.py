@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -273,6 +274,9 @@ def pose_revisits(
     intervals = None if detection is None or detection.independent else detection.interval_of_rows()[keep]
     holds = hold_ids(labels[keep], intervals)
     revisits = revisited_poses(readings[keep], labels[keep], holds, None if time is None else time[keep])
+    if revisits is not None:
+        # The rows of the file, not of the rows kept, so that a message's row can be found in it.
+        revisits = replace(revisits, worst_starts=np.flatnonzero(keep)[revisits.worst_starts].tolist())
     notes = []
     if not keep.all():
         labelled = ~np.isnan(labels)
