@@ -111,18 +111,16 @@ def calibrate(
         "channel_columns": channels,
         "magnitude": None if magnitude is None else as_number(magnitude, "magnitude"),
     }
-    if time is not None:
-        stamps = as_float_array(time, "time", "one time (s) per reading")
-        if stamps.shape != (f,):
-            raise SfmnetError(f"time has shape {stamps.shape} but readings has {f} rows: give one time (s) per reading")
-        columns[TIME_COLUMN] = stamps
-        data["time_column"] = TIME_COLUMN
-    if poses is not None:
-        labels = as_float_array(poses, "poses", "one pose label (a number) per reading")
-        if labels.shape != (f,):
-            raise SfmnetError(f"poses has shape {labels.shape} but readings has {f} rows: give one pose label per reading")
-        columns[POSE_COLUMN] = labels
-        data["group_column"] = POSE_COLUMN
+    for name, values, column, key, wanted in (
+        ("time", time, TIME_COLUMN, "time_column", "one time (s) per reading"),
+        ("poses", poses, POSE_COLUMN, "group_column", "one pose label (a number) per reading"),
+    ):
+        if values is not None:
+            array = as_float_array(values, name, wanted)
+            if array.shape != (f,):
+                raise SfmnetError(f"{name} has shape {array.shape} but readings has {f} rows: give {wanted}")
+            columns[column] = array
+            data[key] = column
     from sfmnet.readers.table_file import Table
 
     table = Table(path=Path(data["path"]), columns=columns, text={})

@@ -62,6 +62,14 @@ def hold_ids(labels: np.ndarray, intervals: np.ndarray | None) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(change)]).astype(np.int64)
 
 
+def holds_per_pose(labels: np.ndarray, holds: np.ndarray) -> dict[float, int]:
+    """How many holds (``holds``, runs of rows) each labelled pose has; unlabelled (NaN) rows left out."""
+    _, first = np.unique(holds, return_index=True)
+    hold_labels = labels[first]
+    poses, counts = np.unique(hold_labels[~np.isnan(hold_labels)], return_counts=True)
+    return dict(zip(poses.tolist(), counts.tolist()))
+
+
 def revisited_poses(
     readings: np.ndarray, labels: np.ndarray, holds: np.ndarray, time: np.ndarray | None = None
 ) -> RevisitedPoses | None:
@@ -92,7 +100,8 @@ def revisited_poses(
     if f - count < 2 * p:
         return None
     hold_label = labels[first]
-    revisited = [label for label in np.unique(hold_label[~np.isnan(hold_label)]) if (hold_label == label).sum() > 1]
+    visits = holds_per_pose(labels, holds)
+    revisited = [label for label, count in visits.items() if count > 1]
     if not revisited:
         return None
     # About the first row, so that raw counts with large offsets lose no precision in the sums.
@@ -131,7 +140,7 @@ def revisited_poses(
         z=f_ratio_z(total / dof, dof, noise_dof if noise_dof > 0 else math.inf),
         dof=dof,
         poses=len(revisited),
-        holds=int(sum(int((hold_label == label).sum()) for label in revisited)),
+        holds=sum(visits[label] for label in revisited),
         worst_pose=label,
         worst_ratio=pose_ratio,
         worst_starts=starts,

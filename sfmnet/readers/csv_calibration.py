@@ -10,7 +10,7 @@ import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording, first_magnitude_mismatch
-from sfmnet.preprocessing.revisited_poses import RevisitedPoses, hold_ids, revisited_poses
+from sfmnet.preprocessing.revisited_poses import RevisitedPoses, hold_ids, holds_per_pose, revisited_poses
 from sfmnet.preprocessing.static_intervals import StaticIntervals
 from sfmnet.readers.static_rows import fitted_rows, static_settings
 from sfmnet.readers.table_file import Table, check_finite, read_table
@@ -279,10 +279,7 @@ def pose_revisits(
         revisits = replace(revisits, worst_starts=np.flatnonzero(keep)[revisits.worst_starts].tolist())
     notes = []
     if not keep.all():
-        labelled = ~np.isnan(labels)
-        runs = hold_ids(labels, None)
-        visits = {float(label): len(np.unique(runs[labels == label])) for label in np.unique(labels[labelled])}
-        kept = {float(label): len(np.unique(holds[labels[keep] == label])) for label in np.unique(labels[keep & labelled])}
+        visits, kept = holds_per_pose(labels, hold_ids(labels, None)), holds_per_pose(labels[keep], holds)
         lost = [label for label, count in visits.items() if count > 1 and kept.get(label, 0) < 2]
         if lost:
             names = ", ".join(f"{label:g}" for label in lost[:5]) + (" ..." if len(lost) > 5 else "")
