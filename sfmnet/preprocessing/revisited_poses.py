@@ -29,7 +29,6 @@ class RevisitedPoses:
         poses: the poses held more than once.
         holds: the holds of those poses.
         worst_pose: the label (as in the file) of the pose whose holds are furthest apart, per degree of freedom.
-        worst_ratio: that pose's own ``sqrt(T_g / dof_g)``.
         worst_starts: the first row of each of its holds (0-based, of the rows given; the reader makes them the file's).
         worst_start_times: the time of those rows (seconds), or None without a time column.
         worst_channel: the channel whose mean moves most between its holds, against the channel's span.
@@ -42,7 +41,6 @@ class RevisitedPoses:
     poses: int
     holds: int
     worst_pose: float
-    worst_ratio: float
     worst_starts: list[int]
     worst_start_times: list[float] | None
     worst_channel: int
@@ -130,7 +128,7 @@ def revisited_poses(
         total, dof = total + statistic, dof + pose_dof
         if math.sqrt(statistic / pose_dof) > worst[1]:
             worst = (float(label), math.sqrt(statistic / pose_dof), members)
-    label, pose_ratio, members = worst
+    label, _, members = worst
     span = np.ptp(means, axis=0)
     move = np.ptp(means[members], axis=0) / np.where(span > 0, span, np.inf)
     channel = int(np.argmax(move))
@@ -142,7 +140,6 @@ def revisited_poses(
         poses=len(revisited),
         holds=sum(visits[label] for label in revisited),
         worst_pose=label,
-        worst_ratio=pose_ratio,
         worst_starts=starts,
         worst_start_times=None if time is None else [float(time[s]) for s in starts],
         worst_channel=channel,
