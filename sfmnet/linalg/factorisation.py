@@ -234,6 +234,113 @@ def ellipsoid_from_coefficients(coefficients: torch.Tensor, n: int, magnitude: f
     return EllipsoidFit(centre=centre, gram=positive_definite_or_raise(magnitude**2 * a / scale))
 
 
+# A row whose leverage in the metric constraint's least squares is this many times the median row's takes it over.
+# On the printed sensor's light load (../shared/data/ft_printed_sensor, configuration 0, 23,997 rows) two rows, one of
+# them a channel jumping 4,143 counts, sit at 2,702x and 191x, the rest under 1.5x, and left it no positive-definite
+# solution. With a glitch of 2-12x the readings' span on one channel of one row in 2,400 (12 held poses, 10 seeds;
+# tests/test_gross_outliers.py), every session it broke had that row at 96-324x, and clean sessions' largest was 1-32x.
+GROSS_OUTLIER_LEVERAGE = 50.0
+
+
+@dataclass(frozen=True)
+class ClosedFormShape:
+    """The closed form's calibration (paper eqs. 5-11; method §4 with offsets).
+
+    Attributes:
+        shape: ``S``, ``n x p`` (raw units per load unit), right up to an orthogonal transform of the load frame;
+            without a magnitude the affine ``S^`` (eq. 8).
+        offset: ``o``, ``p`` (the column mean without a magnitude; zeros without offsets).
+        singular_values: all singular values of the (centred) readings it was solved on.
+        left_out: ``f`` (bool), the gross outliers left out (:func:`gross_outliers`); all False unless every row
+            together had no solution.
+    """
+
+    shape: torch.Tensor
+    offset: torch.Tensor
+    singular_values: torch.Tensor
+    left_out: torch.Tensor
+
+
+def closed_form_shape(readings: torch.Tensor, rank: int, magnitude: float | None, offsets: bool) -> ClosedFormShape:
+    """Truncated SVD (eqs. 6-8), then the metric constraint ``|m_j| = F`` (eqs. 10-11; an ellipsoid with offsets,
+    method §4).
+
+    The metric constraint is a least-squares fit of a quadric, where a row's weight grows as the fourth power of its
+    distance: one glitched row far outside the rest can take it over. Where every row together has no positive-definite
+    solution, the rows :func:`gross_outliers` finds are left out and it is solved again (method §2, "A glitch").
+
+    Args:
+        readings: ``Z``, ``f x p`` (raw units).
+        rank: ``n``.
+        magnitude: ``F`` (load units); None: no metric constraint (the affine factors, PCA).
+        offsets: estimate the channel offsets ``o``.
+
+    Raises:
+        SfmnetError: the readings span fewer than ``n`` dimensions, or no positive-definite metric fits them with
+            the gross outliers left out.
+    """
+    every_row = torch.zeros(len(readings), dtype=torch.bool)
+    try:
+        return ClosedFormShape(*metric_solution(readings, rank, magnitude, offsets), left_out=every_row)
+    except SfmnetError as error:
+        if magnitude is None:
+            raise
+        points = truncated_svd_factors(readings, rank, centre=offsets).motion
+        left_out = gross_outliers(points, offsets)
+        if not bool(left_out.any()):
+            raise
+        try:
+            return ClosedFormShape(*metric_solution(readings[~left_out], rank, magnitude, offsets), left_out=left_out)
+        except SfmnetError:
+            raise error from None
+
+
+def metric_solution(
+    readings: torch.Tensor, rank: int, magnitude: float | None, offsets: bool
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`closed_form_shape` on every row given: ``(S, o, singular values)``."""
+    factors = truncated_svd_factors(readings, rank, centre=offsets)
+    shape, offset = factors.shape, factors.mean
+    if magnitude is not None and offsets:
+        ellipsoid = fit_ellipsoid(factors.motion, magnitude)
+        offset = factors.mean + ellipsoid.centre @ factors.shape
+        shape = metric_shape(factors.shape, ellipsoid.gram)
+    elif magnitude is not None:
+        shape = metric_shape(factors.shape, metric_gram(factors.motion, magnitude))
+    return shape, offset, factors.singular_values
+
+
+def gross_outliers(points: torch.Tensor, offsets: bool) -> torch.Tensor:
+    """Rows that take over the metric constraint's least squares: ``f`` (bool).
+
+    A row's leverage there, ``h_j = |Q_j|^2`` with ``Q`` from the QR decomposition of the design
+    (:func:`metric_design`, ``f x n(n+1)/2`` or with offsets ``+ n``), over :data:`GROSS_OUTLIER_LEVERAGE` times the
+    median row's. The design is quadratic in the readings, so a row's pull grows as the fourth power of its distance:
+    a glitch a few times the readings' span outweighs thousands of rows. A pose of many rows cannot: its rows share
+    their leverage.
+
+    Args:
+        points: the (centred) readings projected on the principal subspace, ``f x n``.
+        offsets: the design has the centre's linear terms.
+    """
+    leverage = torch.linalg.qr(metric_design(points, centre_free=offsets)).Q.pow(2).sum(dim=1)
+    return leverage > GROSS_OUTLIER_LEVERAGE * leverage.median()
+
+
+def gross_outlier_note(left_out: int, rows: int, robust: bool = False) -> str:
+    """What a fit says when :func:`closed_form_shape` left gross outliers out of its start."""
+    fit = (
+        "the robust fit down-weights them"
+        if robust
+        else "the fit itself weighs every row: remove them (outlier_rows in calibration.json) or set model.robust=huber"
+    )
+    return (
+        f"{left_out} of {rows} rows lie far outside all the others (leverage over {GROSS_OUTLIER_LEVERAGE:g}x the "
+        "median row's: a glitch, a spike, a corrupted sample) and left the closed form no solution with them, so its "
+        f"start was solved without them; {fit}"
+    )
+
+
 # Below this coverage the motion is (nearly) collinear or coplanar: good sessions measure
 # 0.55-0.9 even at SNR 2, degenerate ones with noise 0.01-0.18 (see tests).
 MIN_COVERAGE = 0.25

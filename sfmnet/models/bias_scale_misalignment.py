@@ -19,7 +19,7 @@ import torch
 
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.errors import SfmnetError
-from sfmnet.linalg.factorisation import fit_ellipsoid, metric_shape, truncated_svd_factors
+from sfmnet.linalg.factorisation import closed_form_shape, gross_outlier_note
 from sfmnet.models.linear_calibrator import Batch, LinearCalibrator, rms_norm
 
 
@@ -50,15 +50,15 @@ class BiasScaleMisalignment(LinearCalibrator):
         self.magnitude = recording.magnitude
         # Fixed by convention (the triangle), not by known loads.
         self.frame_fixed = False
-        factors = truncated_svd_factors(recording.readings, n, centre=self.estimate_offset)
-        ellipsoid = fit_ellipsoid(factors.motion, self.magnitude)
-        shape = metric_shape(factors.shape, ellipsoid.gram)
-        offset = factors.mean + ellipsoid.centre @ factors.shape if self.estimate_offset else factors.mean
+        solution = closed_form_shape(recording.readings, n, self.magnitude, self.estimate_offset)
+        left_out = int(solution.left_out.sum())
+        if left_out:
+            self.notes.append(gross_outlier_note(left_out, len(recording.readings)))
         # C = pinv(S)^T = Q R: |C x| = |R x|, and R^-T is the lower-triangular shape.
-        q, r = torch.linalg.qr(torch.linalg.inv(shape).T)
+        q, r = torch.linalg.qr(torch.linalg.inv(solution.shape).T)
         r = r * torch.sign(torch.diagonal(r))[:, None]
-        self.singular_values = factors.singular_values
-        self.set_solution(torch.linalg.inv(r).T, offset, rms_norm(recording.readings), load_scale=self.magnitude)
+        self.singular_values = solution.singular_values
+        self.set_solution(torch.linalg.inv(r).T, solution.offset, rms_norm(recording.readings), load_scale=self.magnitude)
 
     def triangular_shape(self) -> torch.Tensor:
         """The dimensionless shape with only its lower triangle free."""

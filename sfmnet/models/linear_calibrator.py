@@ -61,6 +61,8 @@ class LinearCalibrator(nn.Module, ABC):
         self.singular_values: torch.Tensor | None = None
         self.frame_fixed = True
         self.coverage = float("nan")
+        # What the fit noticed on the way (e.g. a glitch left out of its start), reported beside its warnings.
+        self.notes: list[str] = []
 
     @property
     def is_initialised(self) -> bool:
@@ -72,8 +74,8 @@ class LinearCalibrator(nn.Module, ABC):
 
     @property
     def fit_warnings(self) -> list[str]:
-        """What the fit itself has to say (e.g. not converged), beside the diagnostics' warnings."""
-        return []
+        """What the fit itself has to say (its notes; e.g. not converged), beside the diagnostics' warnings."""
+        return list(self.notes)
 
     @property
     def fit_failed(self) -> bool:

@@ -12,14 +12,7 @@ from sfmnet.data.recording import CalibrationRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.anderson import AndersonAcceleration
 from sfmnet.linalg.directions import direction_grid
-from sfmnet.linalg.factorisation import (
-    fit_ellipsoid,
-    metric_gram,
-    metric_shape,
-    metric_unknowns,
-    require_coverage,
-    truncated_svd_factors,
-)
+from sfmnet.linalg.factorisation import closed_form_shape, gross_outlier_note, metric_unknowns, require_coverage
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
 from sfmnet.linalg.uncertainty import residual_noise_variance
 from sfmnet.linalg.group_means import group_means
@@ -251,7 +244,6 @@ class ShapeFromMotion(LinearCalibrator):
         if not huber_threshold > 0:
             raise SfmnetError(f"model.huber_threshold must be positive, got {huber_threshold}")
         self.robust = robust
-        self.notes: list[str] = []
         self.huber_threshold = huber_threshold
         self.rank = rank
         self.metric_weight = metric_weight
@@ -279,7 +271,7 @@ class ShapeFromMotion(LinearCalibrator):
 
     @property
     def fit_warnings(self) -> list[str]:
-        return [*self.notes, *self.fit_problems()]
+        return [*super().fit_warnings, *self.fit_problems()]
 
     def fit_problems(self, unconverged: bool = True) -> list[str]:
         """Why the alternation's answer and error bars are not to be trusted: it ran away, the SNR is too low for it, or
@@ -751,7 +743,8 @@ class ShapeFromMotion(LinearCalibrator):
         return {"marginal_nll": loss, "noise": torch.exp(self.log_noise).detach(), "loss": loss}
 
     def start_from_closed_form(self, recording: CalibrationRecording) -> None:
-        """The paper's closed form for one mass: truncated SVD, then the metric constraint (eqs. 7-11)."""
+        """The paper's closed form for one mass: truncated SVD, then the metric constraint (eqs. 7-11;
+        :func:`closed_form_shape`, which leaves out a glitch that would take it over)."""
         magnitude = recording.magnitude
         # Every row of a rotation recording is the same mass, known loads included.
         readings = recording.readings
@@ -764,16 +757,14 @@ class ShapeFromMotion(LinearCalibrator):
                 f"{' with offsets' if self.estimate_offset else ''}: record at least {needed} orientations "
                 "(dozens give a good calibration)"
             )
-        factors = truncated_svd_factors(readings, self.rank, centre=self.estimate_offset)
-        self.singular_values = factors.singular_values
-        shape, offset = factors.shape, factors.mean
-        if self.constrained and self.estimate_offset:
-            ellipsoid = fit_ellipsoid(factors.motion, magnitude)
-            offset = factors.mean + ellipsoid.centre @ factors.shape
-            shape = metric_shape(factors.shape, ellipsoid.gram)
-        elif self.constrained:
-            shape = metric_shape(factors.shape, metric_gram(factors.motion, magnitude))
-        self.set_solution(shape, offset, rms_norm(readings), load_scale=magnitude if self.constrained else 1.0)
+        solution = closed_form_shape(readings, self.rank, magnitude if self.constrained else None, self.estimate_offset)
+        left_out = int(solution.left_out.sum())
+        if left_out:
+            self.notes.append(gross_outlier_note(left_out, len(readings), self.robust))
+        self.singular_values = solution.singular_values
+        self.set_solution(
+            solution.shape, solution.offset, rms_norm(readings), load_scale=magnitude if self.constrained else 1.0
+        )
         self.set_direction_maps(recording)
 
     def start_from_known_loads(self, recording: CalibrationRecording) -> None:
