@@ -353,7 +353,15 @@ class StreamedShapeFromMotion(LinearCalibrator):
         """Pass 2: the metric constraint (eq. 11, with the ellipsoid's centre for offsets), then the frame (method §3)."""
         n = self.rank
         coefficients = torch.linalg.lstsq(self.metric_normal, self.metric_target[:, None]).solution[:, 0]
-        ellipsoid = ellipsoid_from_coefficients(coefficients, n, self.data.magnitude)
+        try:
+            ellipsoid = ellipsoid_from_coefficients(coefficients, n, self.data.magnitude)
+        except SfmnetError as error:
+            # In memory the closed form leaves out rows that take it over; streamed, it sees only their sums.
+            raise SfmnetError(
+                f"{error}; or a few corrupted rows far outside the rest (a glitch) took the constraint over: "
+                "experiment=calibrate_csv, which holds the rows in memory, finds and leaves them out (method §2, "
+                '"A glitch")'
+            ) from None
         offset = self.centre + ellipsoid.centre @ self.affine_shape
         self.store(metric_shape(self.affine_shape, ellipsoid.gram), offset)
         matrix = self.calibration_matrix()
