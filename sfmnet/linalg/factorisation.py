@@ -234,11 +234,12 @@ def ellipsoid_from_coefficients(coefficients: torch.Tensor, n: int, magnitude: f
     return EllipsoidFit(centre=centre, gram=positive_definite_or_raise(magnitude**2 * a / scale))
 
 
-# A row whose leverage in the metric constraint's least squares is this many times the median row's takes it over.
-# On the printed sensor's light load (../shared/data/ft_printed_sensor, configuration 0, 23,997 rows) two rows, one of
-# them a channel jumping 4,143 counts, sit at 2,702x and 191x, the rest under 1.5x, and left it no positive-definite
-# solution. With a glitch of 2-12x the readings' span on one channel of one row in 2,400 (12 held poses, 10 seeds;
-# tests/test_gross_outliers.py), every session it broke had that row at 96-324x, and clean sessions' largest was 1-32x.
+# A row whose leverage in the metric constraint's least squares is this many times the mean row's (``k / f``, ``k`` its
+# unknowns) takes it over. On the printed sensor's light load (../shared/data/ft_printed_sensor, configuration 0,
+# 23,997 rows) two rows, one of them a channel jumping 4,143 counts, sit at 2,615x and 185x, the rest under 1.5x, and
+# left it no positive-definite solution. With a glitch of 2-12x the readings' span on one channel of one row in 2,400
+# (12 held poses, 10 seeds; tests/test_gross_outliers.py), every session it broke had that row at 124-267x; clean
+# sessions' largest row was at 1.4-1.5x.
 GROSS_OUTLIER_LEVERAGE = 50.0
 
 
@@ -313,18 +314,28 @@ def metric_solution(
 def gross_outliers(points: torch.Tensor, offsets: bool) -> torch.Tensor:
     """Rows that take over the metric constraint's least squares: ``f`` (bool).
 
-    A row's leverage there, ``h_j = |Q_j|^2`` with ``Q`` from the QR decomposition of the design
-    (:func:`metric_design`, ``f x n(n+1)/2`` or with offsets ``+ n``), over :data:`GROSS_OUTLIER_LEVERAGE` times the
-    median row's. The design is quadratic in the readings, so a row's pull grows as the fourth power of its distance:
-    a glitch a few times the readings' span outweighs thousands of rows. A pose of many rows cannot: its rows share
-    their leverage.
+    A row's leverage there, ``h_j = d_j (D^T D)^+ d_j^T`` (:func:`design_leverage`; ``D`` the design,
+    :func:`metric_design`, ``f x k``: ``k = n(n+1)/2``, with offsets ``+ n``), over :func:`leverage_limit`. The design is
+    quadratic in the readings, so a row's pull grows as the fourth power of its distance: a glitch a few times the
+    readings' span outweighs thousands of rows. A pose of many rows cannot: its rows share their leverage.
 
     Args:
         points: the (centred) readings projected on the principal subspace, ``f x n``.
         offsets: the design has the centre's linear terms.
     """
-    leverage = torch.linalg.qr(metric_design(points, centre_free=offsets)).Q.pow(2).sum(dim=1)
-    return leverage > GROSS_OUTLIER_LEVERAGE * leverage.median()
+    design = metric_design(points, centre_free=offsets)
+    return design_leverage(design, design.T @ design) > leverage_limit(design.shape[1], len(design))
+
+
+def design_leverage(design: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
+    """Each row's leverage ``h_j = d_j N^+ d_j^T`` in a least squares with normal matrix ``N = D^T D``: ``f`` for
+    ``design`` ``f x k`` (a block of ``D``'s rows, so that a stream can take it pass by pass)."""
+    return ((design @ torch.linalg.pinv(normal)) * design).sum(dim=1)
+
+
+def leverage_limit(unknowns: int, rows: float) -> float:
+    """:data:`GROSS_OUTLIER_LEVERAGE` times the mean leverage, ``k / f`` (the leverages sum to the ``k`` unknowns)."""
+    return GROSS_OUTLIER_LEVERAGE * unknowns / rows
 
 
 def gross_outlier_note(left_out: int, rows: int, robust: bool = False) -> str:
@@ -336,7 +347,7 @@ def gross_outlier_note(left_out: int, rows: int, robust: bool = False) -> str:
     )
     return (
         f"{left_out} of {rows} rows lie far outside all the others (leverage over {GROSS_OUTLIER_LEVERAGE:g}x the "
-        "median row's: a glitch, a spike, a corrupted sample) and left the closed form no solution with them, so its "
+        "mean row's: a glitch, a spike, a corrupted sample) and left the closed form no solution with them, so its "
         f"start was solved without them; {fit}"
     )
 

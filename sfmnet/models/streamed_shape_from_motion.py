@@ -13,7 +13,10 @@ from sfmnet.data.rows import IntervalSums, RowBlock, StreamedRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.anderson import AndersonAcceleration
 from sfmnet.linalg.factorisation import (
+    design_leverage,
     ellipsoid_from_coefficients,
+    gross_outlier_note,
+    leverage_limit,
     metric_design,
     metric_shape,
     metric_unknowns,
@@ -61,7 +64,9 @@ class StreamedShapeFromMotion(LinearCalibrator):
     2. The metric constraint's normal equations, ``D^T D`` and ``D^T 1`` of the design
        ``D = [quadratic(m^), m^]`` (eq. 11, method §4), from the rows projected with pass 1's
        subspace: ``Q`` and the ellipsoid's centre give ``S`` and ``o``, turned into the known
-       loads' frame by Procrustes (method §3). This is the paper's closed form.
+       loads' frame by Procrustes (method §3). This is the paper's closed form. Where it has no
+       positive-definite solution, passes 1 and 2 are read again without the rows whose leverage
+       in it was extreme (method §2, "A glitch").
     3. Each further pass is one alternation round (``refinement="alternation"``):
        ``u_j = argmin_{|u|=1} |z_j - o - F u S|`` (:func:`unit_motion`), then
        ``[S; o] = solve(A, B)`` with ``A = [M 1]^T [M 1]`` and ``B = [M 1]^T Z`` summed over the pass, known loads as their rows' motion, then the
@@ -103,6 +108,12 @@ class StreamedShapeFromMotion(LinearCalibrator):
         self.max_known_rows = max_known_rows
         self.passes = 0
         self.converged = False
+        # Set where pass 2 found no positive-definite metric (method §2, "A glitch"): what names the rows that took it
+        # over (its subspace, normal matrix and leverage limit), for reading passes 1 and 2 again without them, and the
+        # error it found.
+        self.metric_screen: dict[str, torch.Tensor | float] | None = None
+        self.metric_failure = ""
+        self.metric_left_out = torch.zeros((), dtype=torch.float64)
 
     def fit_mode(self) -> FitMode:
         return FitMode.PASSES
@@ -112,7 +123,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
     PASS_STATE = (
         "passes", "converged", "sample", "first_partial_row", "known", "centre", "singular_values", "affine_shape",
         "projection", "coverage", "frame_fixed", "reading_scale", "load_scale", "closed_form_scale", "residual_squares",
-        "interval_readings", "interval_residuals",
+        "interval_readings", "interval_residuals", "metric_screen", "metric_failure", "metric_left_out",
     )
 
     def get_extra_state(self) -> dict[str, object]:
@@ -165,6 +176,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
             m = metric_unknowns(n, self.estimate_offset)
             self.metric_normal = torch.zeros(m, m, dtype=torch.float64)
             self.metric_target = torch.zeros(m, dtype=torch.float64)
+            self.metric_left_out = torch.zeros((), dtype=torch.float64)
         else:
             k = n + self.estimate_offset
             self.design_gram = torch.zeros(k, k, dtype=torch.float64)
@@ -182,18 +194,34 @@ class StreamedShapeFromMotion(LinearCalibrator):
         if self.data.keep is not None:
             static = torch.from_numpy(self.data.keep[block.start : block.start + len(block.readings)])
             block, rows = RowBlock(block.start, block.readings[static], block.loads[static]), rows[static]
+        gross = self.gross_rows(block.readings) if self.metric_screen is not None and self.passes < 2 else None
         if self.passes == 0:
-            self.accumulate_moments(block, rows)
+            self.accumulate_moments(block, rows, gross)
         elif self.passes == 1:
             design = metric_design(self.affine_motion(block.readings), self.estimate_offset)
+            if gross is not None:
+                self.metric_left_out += gross.sum()
+                design = design[~gross]
             self.metric_normal += cross_product(design)
             self.metric_target += design.sum(dim=0)
         else:
             self.accumulate_alternation(block, rows)
 
-    def accumulate_moments(self, block: RowBlock, rows: torch.Tensor) -> None:
-        """``rows``: each block row's index in the file."""
-        self.moments.add_shifted(block.readings)
+    @property
+    def rows_read(self) -> int:
+        """The static rows each pass reads: the moments' (the closed form's) and any it left out as gross outliers."""
+        return int(self.moments.count) + int(self.metric_left_out)
+
+    def gross_rows(self, shifted: torch.Tensor) -> torch.Tensor:
+        """Which of a block's rows (readings minus the shift) took the first metric pass over: their leverage in it, at
+        its subspace, past its limit (:func:`design_leverage`, :func:`leverage_limit`)."""
+        screen = self.metric_screen
+        motion = (shifted - (screen["centre"] - self.data.shift)) @ screen["projection"]
+        return design_leverage(metric_design(motion, self.estimate_offset), screen["normal"]) > screen["limit"]
+
+    def accumulate_moments(self, block: RowBlock, rows: torch.Tensor, gross: torch.Tensor | None = None) -> None:
+        """``rows``: each block row's index in the file; ``gross``: rows left out of the moments (:meth:`gross_rows`)."""
+        self.moments.add_shifted(block.readings if gross is None else block.readings[~gross])
         if len(block.readings):
             low, high = self.channel_range
             self.channel_range = torch.stack([torch.minimum(low, block.readings.min(dim=0).values),
@@ -276,8 +304,8 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.first_partial_row = int(gather_by_rank(strategy, torch.tensor([float(self.first_partial_row)])).min())
             self.known = gather_rows(strategy, self.known_rows, 1 + len(self.data.channels) + self.rank, self.max_known_rows)
         elif self.passes == 1:
-            self.metric_normal = strategy.reduce(self.metric_normal, reduce_op="sum")
-            self.metric_target = strategy.reduce(self.metric_target, reduce_op="sum")
+            for name in ("metric_normal", "metric_target", "metric_left_out"):
+                setattr(self, name, strategy.reduce(getattr(self, name), reduce_op="sum"))
         else:
             for name in ("design_gram", "design_readings", "residual_squares", "interval_residuals"):
                 setattr(self, name, strategy.reduce(getattr(self, name), reduce_op="sum"))
@@ -287,7 +315,8 @@ class StreamedShapeFromMotion(LinearCalibrator):
         if self.passes == 0:
             self.solve_subspace()
         elif self.passes == 1:
-            self.solve_metric()
+            if not self.solve_metric():
+                return
         elif not self.converged:
             self.solve_alternation()
         self.passes += 1
@@ -349,19 +378,30 @@ class StreamedShapeFromMotion(LinearCalibrator):
         """``k x n``."""
         return self.known[:, 1 + len(self.data.channels) :]
 
-    def solve_metric(self) -> None:
-        """Pass 2: the metric constraint (eq. 11, with the ellipsoid's centre for offsets), then the frame (method §3)."""
+    def solve_metric(self) -> bool:
+        """Pass 2: the metric constraint (eq. 11, with the ellipsoid's centre for offsets), then the frame (method §3).
+
+        Where it has no positive-definite solution, False: passes 1 and 2 are to be read again without the rows whose
+        leverage in this one passes :func:`leverage_limit` (method §2, "A glitch", as :func:`closed_form_shape` does in
+        memory). If it has none then either, this pass's error.
+        """
         n = self.rank
         coefficients = torch.linalg.lstsq(self.metric_normal, self.metric_target[:, None]).solution[:, 0]
         try:
             ellipsoid = ellipsoid_from_coefficients(coefficients, n, self.data.magnitude)
         except SfmnetError as error:
-            # In memory the closed form leaves out rows that take it over; streamed, it sees only their sums.
-            raise SfmnetError(
-                f"{error}; or a few corrupted rows far outside the rest (a glitch) took the constraint over: "
-                "experiment=calibrate_csv, which holds the rows in memory, finds and leaves them out (method §2, "
-                '"A glitch")'
-            ) from None
+            if self.metric_screen is not None:
+                raise SfmnetError(self.metric_failure) from None
+            self.metric_failure = str(error)
+            self.metric_screen = {
+                "centre": self.centre, "projection": self.projection, "normal": self.metric_normal,
+                "limit": leverage_limit(len(self.metric_normal), float(self.moments.count)),
+            }
+            self.passes = 0
+            return False
+        left_out = int(self.metric_left_out)
+        if left_out:
+            self.notes.append(gross_outlier_note(left_out, self.rows_read))
         offset = self.centre + ellipsoid.centre @ self.affine_shape
         self.store(metric_shape(self.affine_shape, ellipsoid.gram), offset)
         matrix = self.calibration_matrix()
@@ -371,6 +411,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         self.closed_form_scale = float(torch.linalg.matrix_norm(self.shape.detach(), ord=2))
         self.acceleration = AndersonAcceleration(history=ANDERSON_HISTORY)
         self.converged = self.refinement == "closed_form"
+        return True
 
     def orient(self) -> None:
         """Procrustes onto the known loads (mirror picked by the hint row with ``n - 1`` of them)."""
@@ -412,7 +453,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         if self.passes <= 2:
             return {}
         return {
-            "train/residual_rms": float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt()),
+            "train/residual_rms": float((self.residual_squares.sum() / (self.rows_read * len(self.data.channels))).sqrt()),
             "train/alternation_step": self.acceleration.step_norm,
         }
 
@@ -457,7 +498,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         unknown row), as ``ShapeFromMotion`` judges it by."""
         p, n = len(self.data.channels), self.rank
         variance = residual_noise_variance(
-            float(self.residual_squares.sum()), int(self.moments.count) * p, self.unknown_rows_streamed, n, (n + self.estimate_offset) * p
+            float(self.residual_squares.sum()), self.rows_read * p, self.unknown_rows_streamed, n, (n + self.estimate_offset) * p
         )
         return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / math.sqrt(variance)
 
@@ -468,15 +509,13 @@ class StreamedShapeFromMotion(LinearCalibrator):
     @property
     def fit_warnings(self) -> list[str]:
         problems = self.fit_problems()
-        if problems or self.converged:
-            return problems
-        step = self.acceleration.step_norm
-        return [
-            (
+        if not (problems or self.converged):
+            step = self.acceleration.step_norm
+            problems = [
                 f"the alternation had not converged after {self.passes} passes (last step {step:.1e}, "
                 f"relative tolerance {self.tolerance:g}): raise trainer.max_epochs"
-            )
-        ]
+            ]
+        return [*super().fit_warnings, *problems]
 
     def report_recording(self, recording: StreamedRecording) -> CalibrationRecording:
         """The sampled rows (every ``stride``-th) and the known-load rows, in memory, for error bars, figures and the
@@ -508,7 +547,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
     @property
     def unknown_rows_streamed(self) -> int:
         """Rows streamed (motion left out) whose load is unknown."""
-        return int(self.moments.count) - len(self.known)
+        return self.rows_read - len(self.known)
 
     def unknown_row_weight(self, recording: CalibrationRecording) -> float:
         """The sample's unknown rows (:meth:`report_recording`) stand for every unknown row streamed."""
@@ -531,7 +570,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
             residual = float(fitted[~recording.known].sum()) * weight + float(fitted[recording.known].sum())
         return calibration_uncertainty(
             self.physical_shape(), loads[recording.known], directions, maps, self.estimate_offset,
-            residual_sum_of_squares=residual, observations=int(self.moments.count) * len(self.data.channels),
+            residual_sum_of_squares=residual, observations=self.rows_read * len(self.data.channels),
             unknown_weight=weight,
         )
 
@@ -540,7 +579,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         ``Z - M S - o`` (the fitted, constrained loads); after the closed form alone, exact from the moments but
         only off the row space of ``S``."""
         if self.passes > 2:
-            return float((self.residual_squares.sum() / (self.moments.count * len(self.data.channels))).sqrt())
+            return float((self.residual_squares.sum() / (self.rows_read * len(self.data.channels))).sqrt())
         shape = self.physical_shape()
         complement = torch.eye(shape.shape[1], dtype=shape.dtype) - shape.T @ torch.linalg.solve(shape @ shape.T, shape)
         residual = torch.trace(complement @ self.moments.cross_about(self.physical_offset()) @ complement)
