@@ -16,6 +16,7 @@ import torch
 
 from sfmnet.training.run import train
 from tests.conftest import REPO, SMALL_SPHERE_GRID, compose_config, write_session
+from tests.test_gross_outliers import held_poses
 
 # Two L-BFGS iterations an epoch: the fit is still moving when it is killed, its optimiser history in play.
 CALIBRATION = [
@@ -129,3 +130,20 @@ def test_same_seed_same_calibration_bit_for_bit(tmp_path: Path):
     assert results[0]["matrix"] == results[1]["matrix"]
     assert results[0]["offset"] == results[1]["offset"]
     assert results[0]["matrix_std"] == results[1]["matrix_std"]
+
+
+def test_streamed_fit_killed_after_leaving_out_a_glitch_resumes_bit_for_bit(tmp_path: Path):
+    """Killed after the moments, the metric pass a glitch took over and the moments read again without it (method §2,
+    "A glitch"): the resumed fit still knows which rows to leave out of the metric pass it reads next."""
+    readings, _ = held_poses(0, glitch_spans=5.0, rows_per_pose=40)
+    session = tmp_path / "session.csv"
+    np.savetxt(session, readings.numpy(), delimiter=",", header=",".join(f"s{i}" for i in range(8)), comments="")
+    run = [
+        "experiment=calibrate_stream", f"data.path={session}", "data.magnitude=3.0", "data.load_columns=[]",
+        "data.axes=[x,y,z]", "data.block_rows=50",
+    ]
+    killed_then_resumed(tmp_path, run, "streamed_shape_from_motion", epoch=3)
+    resumed = tmp_path / "resumed"
+    whole = uninterrupted(tmp_path, run)
+    assert_same_calibration(resumed, whole)
+    assert any(w.startswith("1 of 480 rows lie far outside") for w in json.loads((resumed / "calibration.json").read_text())["warnings"])
