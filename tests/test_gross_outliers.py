@@ -53,6 +53,19 @@ def test_one_glitched_row_is_left_out_of_the_closed_form(seed: int):
     assert gram_error(solution.shape, truth) < 0.01
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3, 5])
+def test_rows_repeating_one_corrupted_reading_are_left_out_together(seed: int):
+    """Eight dropped packets read as zeros on every channel (a hostile tester's session): identical rows share their
+    leverage, each under the limit, so the limit is on each distinct reading's."""
+    readings, truth = held_poses(seed, glitch_spans=0.0)
+    readings[700:708] = 0.0
+    with pytest.raises(SfmnetError, match="no positive-definite solution"):
+        metric_solution(readings, 3, 3.0, offsets=True)
+    solution = closed_form_shape(readings, 3, 3.0, offsets=True)
+    assert torch.nonzero(solution.left_out)[:, 0].tolist() == list(range(700, 708))
+    assert gram_error(solution.shape, truth) < 0.01
+
+
 def test_clean_rows_are_all_kept():
     readings, truth = held_poses(0, glitch_spans=0.0)
     solution = closed_form_shape(readings, 3, 3.0, offsets=True)

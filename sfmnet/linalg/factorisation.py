@@ -234,12 +234,12 @@ def ellipsoid_from_coefficients(coefficients: torch.Tensor, n: int, magnitude: f
     return EllipsoidFit(centre=centre, gram=positive_definite_or_raise(magnitude**2 * a / scale))
 
 
-# A row whose leverage in the metric constraint's least squares is this many times the mean row's (``k / f``, ``k`` its
-# unknowns) takes it over. On the printed sensor's light load (../shared/data/ft_printed_sensor, configuration 0,
-# 23,997 rows) two rows, one of them a channel jumping 4,143 counts, sit at 2,615x and 185x, the rest under 1.5x, and
-# left it no positive-definite solution. With a glitch of 2-12x the readings' span on one channel of one row in 2,400
-# (12 held poses, 10 seeds; tests/test_gross_outliers.py), every session it broke had that row at 124-267x; clean
-# sessions' largest row was at 1.4-1.5x.
+# A distinct reading whose leverage in the metric constraint's least squares is this many times the mean's (``k / u``, ``k``
+# its unknowns, ``u`` the distinct readings) takes it over. On the printed sensor's light load
+# (../shared/data/ft_printed_sensor, configuration 0, 23,997 rows, 1,163 distinct readings) two rows, one of them a
+# channel jumping 4,143 counts, sit at 129x and 78x, the rest under 2.8x, and left it no positive-definite solution.
+# With a glitch of 2-12x the readings' span on one channel of one row in 2,400 (12 held poses, 10 seeds;
+# tests/test_gross_outliers.py), every session it broke had that row at 124-267x; clean sessions' largest was 1.4-1.5x.
 GROSS_OUTLIER_LEVERAGE = 50.0
 
 
@@ -314,17 +314,20 @@ def metric_solution(
 def gross_outliers(points: torch.Tensor, offsets: bool) -> torch.Tensor:
     """Rows that take over the metric constraint's least squares: ``f`` (bool).
 
-    A row's leverage there, ``h_j = d_j (D^T D)^+ d_j^T`` (:func:`design_leverage`; ``D`` the design,
-    :func:`metric_design`, ``f x k``: ``k = n(n+1)/2``, with offsets ``+ n``), over :func:`leverage_limit`. The design is
-    quadratic in the readings, so a row's pull grows as the fourth power of its distance: a glitch a few times the
-    readings' span outweighs thousands of rows. A pose of many rows cannot: its rows share their leverage.
+    Each distinct reading's leverage there, ``h = d (D^T D)^+ d^T`` (:func:`design_leverage`; ``D`` the design of the
+    distinct readings, :func:`metric_design`, ``u x k``: ``k = n(n+1)/2``, with offsets ``+ n``), over
+    :func:`leverage_limit`. The design is quadratic in the readings, so a row's pull grows as the fourth power of its
+    distance: a glitch a few times the readings' span outweighs thousands of rows. Distinct readings, not rows: rows
+    repeating one corrupted reading (a dropped packet read as zeros) would share their leverage and hide. A pose held
+    for many rows cannot be left out this way: its readings differ by the noise and share theirs.
 
     Args:
         points: the (centred) readings projected on the principal subspace, ``f x n``.
         offsets: the design has the centre's linear terms.
     """
-    design = metric_design(points, centre_free=offsets)
-    return design_leverage(design, design.T @ design) > leverage_limit(design.shape[1], len(design))
+    distinct, index = torch.unique(points, dim=0, return_inverse=True)
+    design = metric_design(distinct, centre_free=offsets)
+    return (design_leverage(design, design.T @ design) > leverage_limit(design.shape[1], len(design)))[index]
 
 
 def design_leverage(design: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:

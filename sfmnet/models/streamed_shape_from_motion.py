@@ -214,7 +214,9 @@ class StreamedShapeFromMotion(LinearCalibrator):
 
     def gross_rows(self, shifted: torch.Tensor) -> torch.Tensor:
         """Which of a block's rows (readings minus the shift) took the first metric pass over: their leverage in it, at
-        its subspace, past its limit (:func:`design_leverage`, :func:`leverage_limit`)."""
+        its subspace, past its limit (:func:`design_leverage`, :func:`leverage_limit`). Each row's, where in memory each
+        distinct reading's (:func:`~sfmnet.linalg.factorisation.gross_outliers`): a stream cannot tell which rows repeat
+        one reading, and many that do share their leverage and pass."""
         screen = self.metric_screen
         motion = (shifted - (screen["centre"] - self.data.shift)) @ screen["projection"]
         return design_leverage(metric_design(motion, self.estimate_offset), screen["normal"]) > screen["limit"]
@@ -391,7 +393,11 @@ class StreamedShapeFromMotion(LinearCalibrator):
             ellipsoid = ellipsoid_from_coefficients(coefficients, n, self.data.magnitude)
         except SfmnetError as error:
             if self.metric_screen is not None:
-                raise SfmnetError(self.metric_failure) from None
+                raise SfmnetError(
+                    f"{self.metric_failure}; or corrupted rows took it over that a stream cannot single out (many rows "
+                    "repeating one reading, e.g. zeros from dropped packets): remove them, or calibrate in memory with "
+                    'experiment=calibrate_csv, which finds them (method §2, "A glitch")'
+                ) from None
             self.metric_failure = str(error)
             self.metric_screen = {
                 "centre": self.centre, "projection": self.projection, "normal": self.metric_normal,
