@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from sfmnet.data.rows import IntervalSums
-from sfmnet.linalg.chi_square import chi_square_z
+from sfmnet.linalg.chi_square import chi_square_quantile, chi_square_z, robust_noise_variance
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
 from sfmnet.linalg.uncertainty import relative_matrix_std
@@ -65,6 +65,8 @@ POSE_MISFIT_Z = 3.0
 # 0.1-0.2 and never past 2.5. Noise correlated over much of a hold is not told from drift: AR(0.95) over 100-row holds
 # passed 3 in 11 of 100 (its hold means do vary more than the rows within them say, and the error bars are too small).
 REVISIT_Z = 3.0
+# The figures that count and weigh the outlying rows (a robust fit, judged again without them, keeps these).
+OUTLIER_METRICS = ("goodness/outliers", "goodness/outlier_fraction", "goodness/robust_noise")
 # Outliers are a problem once there are more than a handful beyond what the tail itself predicts.
 OUTLIER_ALLOWANCE = 3
 # A calibration as likely as the fit (within LIKELY_NATS, about 2 standard errors along one direction) may
@@ -346,12 +348,6 @@ def constraint_noise_ratio(loads: torch.Tensor, off_space: torch.Tensor, matrix:
     return float(((loads.norm(dim=1) - magnitude) / spread).pow(2).mean().sqrt())
 
 
-def chi_square_quantile(dof: torch.Tensor, z: float) -> torch.Tensor:
-    """Wilson-Hilferty approximation of the chi-square quantile at standard-normal quantile ``z``, per entry of ``dof``."""
-    a = 2 / (9 * dof)
-    return dof * (1 - a + z * a.sqrt()) ** 3
-
-
 def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Tensor, float]:
     """Rows whose squared residual is beyond the chi-square tail, the noise estimated robustly.
 
@@ -370,10 +366,8 @@ def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Ten
     free = dof > 0
     if not bool(free.any()):
         return torch.zeros_like(free), math.nan
-    squares, dof = squares[free], dof[free]
-    dof = dof.to(squares.dtype)
-    medians = chi_square_quantile(dof, 0.0)
-    variance = float((squares / medians).median())
+    squares, dof = squares[free], dof[free].to(squares.dtype)
+    variance = robust_noise_variance(squares, dof)
     limits = chi_square_quantile(dof, OUTLIER_Z)
     outliers = torch.zeros_like(free)
     outliers[free] = squares > limits * variance
@@ -574,11 +568,16 @@ def goodness_of_fit(
                 f"exactly; record at least {needed + 1} poses (dozens give a good calibration)"
             )
         elif not tied and equations < untied_needed and scatter <= MAX_HELD_POSE_SCATTER:
+            remedy = (
+                "a robust fit (model.robust=huber) fits every row on its own: leave it off, or remove the outlying rows"
+                if robust
+                else "calibrate in memory (calibrate_csv) with data.group_column giving each row's pose or a time column, "
+                "whose static intervals tie each pose's rows to one direction (calibrate_stream fits every row on its own)"
+            )
             warnings.append(
                 f"the rows were held at only {equations} orientations (poses) and each row's direction was fitted on its "
                 f"own: with fewer than {untied_needed} poses such error bars come out too small; record more poses, or "
-                "calibrate in memory (calibrate_csv) with data.group_column giving each row's pose or a time column, whose "
-                "static intervals tie each pose's rows to one direction (calibrate_stream fits every row on its own)"
+                f"{remedy}"
             )
     if matrix_std is not None:
         relative = relative_matrix_std(matrix_std, matrix)

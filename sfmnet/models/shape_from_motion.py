@@ -11,6 +11,7 @@ import torch
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.anderson import AndersonAcceleration
+from sfmnet.linalg.chi_square import robust_noise_variance
 from sfmnet.linalg.directions import direction_grid
 from sfmnet.linalg.factorisation import closed_form_shape, gross_outlier_note, metric_unknowns, require_coverage
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
@@ -505,8 +506,14 @@ class ShapeFromMotion(LinearCalibrator):
         poses = self.unknown_poses(recording)
         free = int((~recording.known).sum()) if poses is None else len(poses.unique())
         squares = float(residuals.pow(2).sum())
-        variance = residual_noise_variance(squares, f * p, free, self.direction_maps.shape[1], (self.rank + self.estimate_offset) * p)
-        return math.sqrt(variance), math.sqrt(squares / residuals.numel())
+        rms = math.sqrt(squares / residuals.numel())
+        d = self.direction_maps.shape[1]
+        if self.robust:
+            # A robust fit is judged without its outliers: a glitch would otherwise set its SNR (untied, as robust is).
+            dof = torch.where(recording.known, p, p - d + 1)
+            return math.sqrt(robust_noise_variance(residuals.pow(2).sum(dim=1), dof)), rms
+        variance = residual_noise_variance(squares, f * p, free, d, (self.rank + self.estimate_offset) * p)
+        return math.sqrt(variance), rms
 
     def start_marginal(self, noise: float) -> None:
         """The direction grid of the marginal likelihood, and its noise level started at ``noise`` (raw units)."""

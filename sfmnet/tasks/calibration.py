@@ -13,6 +13,7 @@ Run directory::
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -22,7 +23,12 @@ from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import method_title, motion_figure, spectrum_figure
 from sfmnet.eval.held_out import load_errors, magnitude_errors
-from sfmnet.eval.goodness_of_fit import correlated_noise_warning, repeated_rows_warning, revisited_pose_warning
+from sfmnet.eval.goodness_of_fit import (
+    OUTLIER_METRICS,
+    correlated_noise_warning,
+    repeated_rows_warning,
+    revisited_pose_warning,
+)
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.linalg.uncertainty import relative_matrix_std
 from sfmnet.models.linear_calibrator import LinearCalibrator
@@ -60,10 +66,18 @@ class CalibrationTask(Task):
             model, recording, data.channels, loads, uncertainty, data.load_unit
         )
         if model.robust and goodness.outlier_rows:
-            # A robust fit down-weighted its outliers: its error bars describe the rows it kept.
+            # A robust fit down-weighted its outliers: its error bars describe the rows it kept, and it is judged on them,
+            # its outliers still counted and listed.
             outlying = torch.zeros(len(loads), dtype=torch.bool)
             outlying[goodness.outlier_rows] = True
-            uncertainty = model.uncertainty(recording.without(outlying), loads[~outlying])
+            kept, kept_loads = recording.without(outlying), loads[~outlying]
+            uncertainty = model.uncertainty(kept, kept_loads)
+            counted, listed = {key: goodness.metrics[key] for key in OUTLIER_METRICS}, goodness.outlier_rows
+            diagnostics, warnings, goodness = calibration_diagnostics(
+                model, kept, data.channels, kept_loads, uncertainty, data.load_unit
+            )
+            diagnostics.update(counted)
+            goodness = replace(goodness, metrics={**goodness.metrics, **counted}, outlier_rows=listed)
         detection = data.static_intervals
         repeats = None if detection is None else repeated_rows_warning(
             detection.repeated_rows, detection.channel_repeats, detection.rows_kept - detection.count
