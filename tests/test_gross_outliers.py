@@ -134,3 +134,46 @@ def test_a_robust_fit_is_judged_without_the_glitch_it_down_weighted(tmp_path: Pa
     assert metrics["goodness/outliers"] >= 1 and GLITCH_POSE * 120 in calibration["outlier_rows"]
     estimate = torch.linalg.pinv(torch.tensor(calibration["matrix"], dtype=torch.float64)).T
     assert gram_error(estimate, truth) < 0.01
+
+
+def write_labelled_session(path: Path, readings: torch.Tensor, seed: int, known_poses: int = 3, rows_per_pose: int = 200) -> None:
+    """``readings`` (from :func:`held_poses` with ``seed``) as a CSV with a pose column and the true load on the first
+    ``known_poses`` poses' rows."""
+    rng = np.random.default_rng(seed)
+    rng.normal(size=(3, 8)), rng.normal(size=8)
+    directions = rng.normal(size=(len(readings) // rows_per_pose, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    loads = np.repeat(3.0 * directions, rows_per_pose, axis=0)
+    loads[known_poses * rows_per_pose :] = np.nan
+    poses = np.repeat(np.arange(len(directions)), rows_per_pose)[:, None]
+    table = np.hstack([readings.numpy(), loads, poses])
+    header = ",".join([*(f"s{i}" for i in range(8)), "fx", "fy", "fz", "pose"])
+    np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.10g")
+
+
+@pytest.mark.parametrize("glitched", [True, False])
+def test_a_dropped_packet_in_a_known_pose_is_neither_refused_nor_trusted(glitched: bool, tmp_path: Path):
+    """One row of a known-load pose's 200 read as zeros, on integer counts about an offset of 500 (as a hostile tester's
+    session): the frame's Procrustes took it for a known load 42 degrees off and refused every known load as
+    contradictory; now each known load is placed by its rows' median. The calibration keeps the row (16x the clean
+    matrix error), two rows too few to count as outliers, and was trusted within bars the row had widened: the fit's
+    noise, 10x the median row's, now says so."""
+    readings, truth = held_poses(2, glitch_spans=0.0)
+    rng = np.random.default_rng(2)
+    rng.normal(size=(3, 8))
+    count = 1 / (0.01 * float((readings - torch.from_numpy(10 * rng.normal(size=8))).std()))
+    readings = torch.round(readings * count + 500)
+    if glitched:
+        readings[250] = 0.0
+    path = tmp_path / "session.csv"
+    write_labelled_session(path, readings, 2)
+    overrides = [f"data.path={path}", "data.magnitude=3.0", "data.group_column=pose"]
+    train(compose_config(["experiment=calibrate_csv", *overrides]), tmp_path / "run")
+    calibration = json.loads((tmp_path / "run" / "calibration.json").read_text())
+    spread = [w for w in calibration["warnings"] if "the noise most rows show" in w]
+    assert calibration["error_bars_trustworthy"] == (not glitched)
+    assert bool(spread) == glitched
+    estimate = torch.linalg.pinv(torch.tensor(calibration["matrix"], dtype=torch.float64)).T
+    # The frame is the known loads': the shape itself, not only S^T S.
+    error = float((estimate - count * torch.from_numpy(truth)).norm() / (count * np.linalg.norm(truth)))
+    assert (error > 0.01) if glitched else (error < 0.002)

@@ -40,6 +40,19 @@ def orthogonal_procrustes(source: torch.Tensor, target: torch.Tensor) -> torch.T
     return u @ vt
 
 
+def median_per_load(estimated_loads: torch.Tensor, known_loads: torch.Tensor) -> torch.Tensor:
+    """Each row's recovered load replaced by the median (per axis) over the rows given the same known load: ``k x n``.
+
+    Procrustes on the rows weighs each known load by its rows through their mean (``sum_j l_j^T e_j``); the median
+    keeps that weight while one corrupted row among a pose's hundreds (a dropped packet read as zeros) cannot turn the
+    frame or have every known load called contradictory (a hostile tester's session: "42 degrees" off, from one row of
+    200). A load given on one row is its own median.
+    """
+    _, index = torch.unique(known_loads, dim=0, return_inverse=True)
+    medians = torch.stack([estimated_loads[index == g].median(dim=0).values for g in range(int(index.max()) + 1)])
+    return medians[index]
+
+
 def frame_rotation(
     estimated_loads: torch.Tensor,
     known_loads: torch.Tensor,
@@ -65,6 +78,7 @@ def frame_rotation(
         SfmnetError: loads that span fewer than ``n - 1`` directions, or ``n - 1`` without a hint.
     """
     n = known_loads.shape[1]
+    estimated_loads = median_per_load(estimated_loads, known_loads)
     singular = torch.linalg.svdvals(known_loads)
     span = int((singular > SPAN_TOLERANCE * singular[0]).sum()) if len(singular) else 0
     if span < n - 1:
