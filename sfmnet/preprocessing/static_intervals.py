@@ -451,7 +451,8 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
 
     A window of ``L = 2 half + 1`` rows of Gaussian noise has ``L v / sigma^2 ~ chi2(L - 1)``, so
     the quantile of ``v`` is divided by the chi-square quantile over ``L``; the floor is at
-    least the channel's quantisation (its smallest step over sqrt(12)). Windows cut short by a
+    least the channel's quantisation (its smallest step over sqrt(12)). A channel flat in more than
+    ``quantile`` of the windows (clipped, stuck) takes the quantile of the windows where it moves. Windows cut short by a
     gap or an end have fewer degrees of freedom, so a lower quantile: they are left out when
     ``FULL_WINDOWS`` whole ones are sampled.
     """
@@ -468,7 +469,13 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
     dof = 2 * half
     z = NormalDist().inv_cdf(quantile)
     chi2_quantile = dof * max(1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof)), 0.05) ** 3  # Wilson-Hilferty
-    floor = np.sqrt(np.quantile(sampled, quantile, axis=0) * (dof + 1) / chi2_quantile)
+    low = np.quantile(sampled, quantile, axis=0)
+    # A channel flat for over ``quantile`` of the windows (clipped at its range, stuck, dropped out) has no noise there:
+    # its floor is the quantile of the windows where it moves, or every other row of it would read as motion.
+    for channel in np.nonzero(low == 0)[0]:
+        moving = sampled[:, channel][sampled[:, channel] > 0]
+        low[channel] = np.quantile(moving, quantile) if len(moving) else 0.0
+    floor = np.sqrt(low * (dof + 1) / chi2_quantile)
     return np.maximum(floor, step / math.sqrt(12))
 
 
