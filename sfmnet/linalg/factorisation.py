@@ -252,8 +252,7 @@ class ClosedFormShape:
             without a magnitude the affine ``S^`` (eq. 8).
         offset: ``o``, ``p`` (the column mean without a magnitude; zeros without offsets).
         singular_values: all singular values of the (centred) readings it was solved on.
-        left_out: ``f`` (bool), the gross outliers left out (:func:`gross_outliers`); all False unless every row
-            together had no solution.
+        left_out: ``f`` (bool), the gross outliers left out (:func:`gross_outliers`).
     """
 
     shape: torch.Tensor
@@ -267,8 +266,9 @@ def closed_form_shape(readings: torch.Tensor, rank: int, magnitude: float | None
     method §4).
 
     The metric constraint is a least-squares fit of a quadric, where a row's weight grows as the fourth power of its
-    distance: one glitched row far outside the rest can take it over. Where every row together has no positive-definite
-    solution, the rows :func:`gross_outliers` finds are left out and it is solved again (method §2, "A glitch").
+    distance: one glitched row far outside the rest takes it over, pulling the start the refinement sets out from or
+    leaving it no positive-definite solution at all. So the rows :func:`gross_outliers` finds are left out of it
+    (method §2, "A glitch"); on clean recordings there are none.
 
     Args:
         readings: ``Z``, ``f x p`` (raw units).
@@ -277,23 +277,12 @@ def closed_form_shape(readings: torch.Tensor, rank: int, magnitude: float | None
         offsets: estimate the channel offsets ``o``.
 
     Raises:
-        SfmnetError: the readings span fewer than ``n`` dimensions, or no positive-definite metric fits them with
-            the gross outliers left out.
+        SfmnetError: the readings span fewer than ``n`` dimensions, or no positive-definite metric fits them.
     """
-    every_row = torch.zeros(len(readings), dtype=torch.bool)
-    try:
-        return ClosedFormShape(*metric_solution(readings, rank, magnitude, offsets), left_out=every_row)
-    except SfmnetError as error:
-        if magnitude is None:
-            raise
-        points = truncated_svd_factors(readings, rank, centre=offsets).motion
-        left_out = gross_outliers(points, offsets)
-        if not bool(left_out.any()):
-            raise
-        try:
-            return ClosedFormShape(*metric_solution(readings[~left_out], rank, magnitude, offsets), left_out=left_out)
-        except SfmnetError:
-            raise error from None
+    left_out = torch.zeros(len(readings), dtype=torch.bool)
+    if magnitude is not None:
+        left_out = gross_outliers(truncated_svd_factors(readings, rank, centre=offsets).motion, offsets)
+    return ClosedFormShape(*metric_solution(readings[~left_out], rank, magnitude, offsets), left_out=left_out)
 
 
 def metric_solution(
@@ -350,8 +339,8 @@ def gross_outlier_note(left_out: int, rows: int, robust: bool = False) -> str:
     )
     return (
         f"{left_out} of {rows} rows lie far outside all the others (leverage over {GROSS_OUTLIER_LEVERAGE:g}x the "
-        "mean row's: a glitch, a spike, a corrupted sample) and left the closed form no solution with them, so its "
-        f"start was solved without them; {fit}"
+        "mean row's: a glitch, a spike, a corrupted sample), enough to take the closed form over, so its start was "
+        f"solved without them; {fit}"
     )
 
 
