@@ -81,6 +81,24 @@ def test_a_channel_flat_for_part_of_the_stream_keeps_its_noise_floor(fault: str)
     assert found.noise_floor[0] == pytest.approx(float(stream_noise(recording)), rel=0.25)
 
 
+@pytest.mark.parametrize("noise_counts", [0.0, 0.05])
+def test_poses_held_with_noise_under_one_count_keep_the_quantisation_floor(noise_counts: float):
+    """Readings rounded to counts (about 1,000 at full load) with noise of 0-0.05 counts (a hostile tester's streams):
+    each channel is flat in every static window, but at a level of its own for each pose. Taken for a clipped channel,
+    its floor came from the windows where it moves, the motion (2-12 counts), and at no noise 64 rows in motion were
+    kept as static. Flat at many levels, it keeps its quantisation, one count over sqrt(12)."""
+    generator = torch.Generator().manual_seed(0)
+    sensor = stream_sensor(8, MASS * STANDARD_GRAVITY, noise_fraction=1e-9, offset_scale=0.2, generator=generator)
+    recording = simulate_stream(sensor, MASS, poses=12, rate=50.0, generator=generator)
+    rng = np.random.default_rng(0)
+    readings = recording.readings.numpy()
+    counts = np.round(readings * 1000 / np.abs(readings).max() + 50 + noise_counts * rng.normal(size=readings.shape))
+    found = find_static_intervals(counts, recording.time.numpy())
+    np.testing.assert_allclose(found.noise_floor, 1 / np.sqrt(12))
+    assert found.count == len(recording.intervals)
+    assert not bool((found.mask & ~recording.static.numpy()).any())
+
+
 def stream_noise(recording: ContinuousRecording) -> float:
     """The noise std seen in the first static interval (the simulated sensor's noise)."""
     first, stop = recording.intervals[0].tolist()

@@ -51,6 +51,7 @@ GAP_PERIODS = 5.0         # a time step over this many ticks splits the stream
 JITTER_PERIODS = 2.0      # a time step back by at most this many ticks is jitter, not disorder
 MAX_GAP_FRACTION = 0.1    # more of the steps gaps than this: the time column is not one clock at one rate
 FULL_WINDOWS = 100        # the noise floor is taken over whole windows only when at least this many are sampled
+FLAT_LEVELS_SHARE = 0.5   # a channel's flat windows this much at its two commonest levels: clipped or stuck there
 
 
 class Rows(Protocol):
@@ -269,7 +270,7 @@ def find_static_intervals(
     floor = noise_floor(readings, half, noise_quantile, scan.step, chunk_rows, starts)
     statistic = np.empty(f, dtype=np.float32)
     used = floor > 0
-    for first, variance, _ in moving_variances(readings, half, chunk_rows, starts):
+    for first, variance, _, _ in moving_variances(readings, half, chunk_rows, starts):
         statistic[first : first + len(variance)] = (variance[:, used] / floor[used] ** 2).mean(axis=1)
     intervals = static_runs(statistic < threshold, min_rows, starts, window_rows)
     mask = np.zeros(f, dtype=bool)
@@ -421,9 +422,10 @@ def not_increasing(step: float, what: str) -> SfmnetError:
 
 def moving_variances(
     readings: Rows, half: int, chunk_rows: int, starts: np.ndarray
-) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
-    """``(first row, b x p variances, b counts)`` blocks: each row's variance over rows ``[i - half, i + half]``,
-    cut at the ends of its stretch (``starts``: sorted first rows of the stretches between gaps, from 0).
+) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """``(first row, b x p variances, b x p means, b counts)`` blocks: each row's variance and mean over rows
+    ``[i - half, i + half]``, cut at the ends of its stretch (``starts``: sorted first rows of the stretches between
+    gaps, from 0).
 
     Each chunk is read with ``half`` rows either side and shifted by its first row, so the
     cumulative sums stay small, and the same rows give the same numbers however they are read.
@@ -433,7 +435,8 @@ def moving_variances(
         stop = min(f, first + chunk_rows)
         start, end = max(0, first - half), min(f, stop + half)
         block = np.asarray(readings[start:end], dtype=np.float64)
-        block = block - block[0]
+        shift = block[0].copy()
+        block = block - shift
         sums = np.concatenate([np.zeros((1, block.shape[1])), np.cumsum(block, axis=0)])
         squares = np.concatenate([np.zeros((1, block.shape[1])), np.cumsum(block**2, axis=0)])
         rows = np.arange(first, stop)
@@ -443,7 +446,7 @@ def moving_variances(
         high = np.minimum(rows + half + 1, stretch_stop) - start
         count = (high - low)[:, None]
         mean = (sums[high] - sums[low]) / count
-        yield first, np.maximum((squares[high] - squares[low]) / count - mean**2, 0.0), count[:, 0]
+        yield first, np.maximum((squares[high] - squares[low]) / count - mean**2, 0.0), mean + shift, count[:, 0]
 
 
 def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, chunk_rows: int, starts: np.ndarray) -> np.ndarray:
@@ -452,29 +455,37 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
     A window of ``L = 2 half + 1`` rows of Gaussian noise has ``L v / sigma^2 ~ chi2(L - 1)``, so
     the quantile of ``v`` is divided by the chi-square quantile over ``L``; the floor is at
     least the channel's quantisation (its smallest step over sqrt(12)). A channel flat in more than
-    ``quantile`` of the windows (clipped, stuck) takes the quantile of the windows where it moves. Windows cut short by a
-    gap or an end have fewer degrees of freedom, so a lower quantile: they are left out when
-    ``FULL_WINDOWS`` whole ones are sampled.
+    ``quantile`` of the windows at one or two levels (clipped, stuck: :data:`FLAT_LEVELS_SHARE`) takes the quantile of
+    the windows where it moves; flat at many levels, it is held poses with noise below its step, and its floor is the
+    quantisation's. Windows cut short by a gap or an end have fewer degrees of freedom, so a lower quantile: they are
+    left out when ``FULL_WINDOWS`` whole ones are sampled.
     """
     f = readings.shape[0]
     stride = max(1, math.ceil(f / NOISE_SAMPLES))
-    sampled, counts = [], []
-    for first, variance, count in moving_variances(readings, half, chunk_rows, starts):
+    sampled, levels, counts = [], [], []
+    for first, variance, mean, count in moving_variances(readings, half, chunk_rows, starts):
         sampled.append(variance[(-first) % stride :: stride])
+        levels.append(mean[(-first) % stride :: stride])
         counts.append(count[(-first) % stride :: stride])
-    sampled, counts = np.concatenate(sampled), np.concatenate(counts)
+    sampled, levels, counts = np.concatenate(sampled), np.concatenate(levels), np.concatenate(counts)
     whole = counts == 2 * half + 1
     if whole.sum() >= FULL_WINDOWS:
-        sampled = sampled[whole]
+        sampled, levels = sampled[whole], levels[whole]
     dof = 2 * half
     z = NormalDist().inv_cdf(quantile)
     chi2_quantile = dof * max(1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof)), 0.05) ** 3  # Wilson-Hilferty
     low = np.quantile(sampled, quantile, axis=0)
-    # A channel flat for over ``quantile`` of the windows (clipped at its range, stuck, dropped out) has no noise there:
-    # its floor is the quantile of the windows where it moves, or every other row of it would read as motion.
+    # A channel flat for over ``quantile`` of the windows at one or two levels (clipped at its range, stuck, dropped out)
+    # has no noise there: its floor is the quantile of the windows where it moves, or every other row of it would read
+    # as motion. Flat at many levels, it is poses held with noise under one count, and the windows where it moves are
+    # the motion: there the quantisation is the floor.
     for channel in np.nonzero(low == 0)[0]:
-        moving = sampled[:, channel][sampled[:, channel] > 0]
-        low[channel] = np.quantile(moving, quantile) if len(moving) else 0.0
+        flat = sampled[:, channel] == 0
+        # float32: a flat window's mean is its level to rounding, which differs by where the chunk was shifted.
+        _, repeats = np.unique(levels[flat, channel].astype(np.float32), return_counts=True)
+        if np.sort(repeats)[-2:].sum() >= FLAT_LEVELS_SHARE * flat.sum():
+            moving = sampled[~flat, channel]
+            low[channel] = np.quantile(moving, quantile) if len(moving) else 0.0
     floor = np.sqrt(low * (dof + 1) / chi2_quantile)
     return np.maximum(floor, step / math.sqrt(12))
 
