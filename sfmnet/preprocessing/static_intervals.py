@@ -51,6 +51,7 @@ GAP_PERIODS = 5.0         # a time step over this many ticks splits the stream
 JITTER_PERIODS = 2.0      # a time step back by at most this many ticks is jitter, not disorder
 MAX_GAP_FRACTION = 0.1    # more of the steps gaps than this: the time column is not one clock at one rate
 FULL_WINDOWS = 100        # the noise floor is taken over whole windows only when at least this many are sampled
+FLAT_VARIANCE = 1e-10     # a window is flat where its variance is under this fraction of the channel's span squared
 FLAT_LEVELS_SHARE = 0.5   # a channel's flat windows this much at its two commonest levels: clipped or stuck there
 
 
@@ -474,13 +475,15 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
     dof = 2 * half
     z = NormalDist().inv_cdf(quantile)
     chi2_quantile = dof * max(1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof)), 0.05) ** 3  # Wilson-Hilferty
-    low = np.quantile(sampled, quantile, axis=0)
+    # A flat window's variance is 0 to the rounding of the running sums (1e-14 in volts), not exactly 0.
+    flat_windows = sampled <= FLAT_VARIANCE * np.ptp(levels, axis=0) ** 2
+    low = np.quantile(np.where(flat_windows, 0.0, sampled), quantile, axis=0)
     # A channel flat for over ``quantile`` of the windows at one or two levels (clipped at its range, stuck, dropped out)
     # has no noise there: its floor is the quantile of the windows where it moves, or every other row of it would read
     # as motion. Flat at many levels, it is poses held with noise under one count, and the windows where it moves are
     # the motion: there the quantisation is the floor.
     for channel in np.nonzero(low == 0)[0]:
-        flat = sampled[:, channel] == 0
+        flat = flat_windows[:, channel]
         # float32: a flat window's mean is its level to rounding, which differs by where the chunk was shifted.
         _, repeats = np.unique(levels[flat, channel].astype(np.float32), return_counts=True)
         if np.sort(repeats)[-2:].sum() >= FLAT_LEVELS_SHARE * flat.sum():
