@@ -248,8 +248,9 @@ GROSS_OUTLIER_LEVERAGE = 50.0
 # cap sits at 87-110x. So a reading past the leverage limit is left out only where, added to the least squares of every
 # other reading, it raises their residual sum of squares by over this fraction (:func:`takeover_fractions`). Lone known
 # loads in caps measure 0.064 at most (82 rows past the limit in 54 sessions: SNR 5-50, 100-30,000 rows); the glitches
-# above 1.4-1,100 (22 past it in 24 sessions, 2-100 spans), the printed sensor's three 9-28. In standard errors the lone rows reach 42 at 30,000 rows, which is why it is not a
-# studentised residual: the cap's fit carries the errors-in-variables bias of a quadric, which does not shrink with rows.
+# above 1.4-1,100 (22 past it in 24 sessions, 2-100 spans), the printed sensor's three 9-28. In standard errors the lone
+# rows reach 42 at 30,000 rows, which is why it is not a studentised residual: the cap's fit carries the
+# errors-in-variables bias of a quadric, which does not shrink with rows.
 GROSS_OUTLIER_TAKEOVER = 0.25
 
 
@@ -361,19 +362,23 @@ def takeover_fractions(design: torch.Tensor, rows: torch.Tensor) -> torch.Tensor
     bulk_residual = ones[~rows] - rest @ torch.linalg.lstsq(rest, ones[~rows, None]).solution[:, 0]
     # Floored at a relative 1e-8 so that exact (simulated) readings do not score rounding.
     variance = max(robust_noise_variance(bulk_residual**2, torch.ones_like(bulk_residual)), 1e-16)
+    # Each row's others are the rest and the other rows scored: their normal matrix and right-hand side, built up from
+    # the rest's rather than taken down from every row's, which a glitch dominates.
+    scored = design[rows]
+    rest_normal, rest_sum = rest.T @ rest, rest.sum(dim=0)
     fractions = []
-    for i in torch.nonzero(rows)[:, 0].tolist():
-        others = torch.cat([design[:i], design[i + 1 :]])
-        eigenvalues, basis = torch.linalg.eigh(others.T @ others)
+    for i, row_design in enumerate(scored):
+        peers = torch.cat([scored[:i], scored[i + 1 :]])
+        eigenvalues, basis = torch.linalg.eigh(rest_normal + peers.T @ peers)
         measured = eigenvalues > RANK_TOLERANCE * eigenvalues[-1]
-        row = design[i] @ basis
+        row = row_design @ basis
         if bool((row[~measured].abs() > RANK_TOLERANCE * row.abs().max()).any()):
             fractions.append(0.0)
             continue
-        coefficients = basis[:, measured] @ ((others @ basis[:, measured]).T @ ones[1:] / eigenvalues[measured])
+        coefficients = basis[:, measured] @ ((rest_sum + peers.sum(dim=0)) @ basis[:, measured] / eigenvalues[measured])
         spread = float((row[measured] ** 2 / eigenvalues[measured]).sum())
-        residual = 1 - float(design[i] @ coefficients)
-        fractions.append(residual**2 * spread / (1 + spread) ** 2 / (len(others) * variance))
+        residual = 1 - float(row_design @ coefficients)
+        fractions.append(residual**2 * spread / (1 + spread) ** 2 / ((len(design) - 1) * variance))
     return design.new_tensor(fractions)
 
 
