@@ -74,6 +74,36 @@ def test_rows_repeating_one_corrupted_reading_are_left_out_together(seed: int):
     assert gram_error(solution.shape, truth) < 0.01
 
 
+def spiked_poses(seed: int, spans: list[float]) -> tuple[torch.Tensor, np.ndarray]:
+    """:func:`held_poses` with a spike lasting ``len(spans)`` samples from the first row of pose :data:`GLITCH_POSE`:
+    the sixth channel off by each of ``spans`` times the largest load reading, each sample with its own noise."""
+    readings, truth = held_poses(seed, glitch_spans=0.0)
+    rows = slice(GLITCH_POSE * 200, GLITCH_POSE * 200 + len(spans))
+    readings[rows, 5] += torch.tensor(spans, dtype=readings.dtype) * float(readings.abs().max())
+    return readings, truth
+
+
+@pytest.mark.parametrize(
+    ("seed", "spans"),
+    [
+        # Samples of one spike, within the noise of one another: each halves the other's leverage and fits the start to
+        # itself where the other is judged (the screen of one reading at a time refused 9 of 10 seeds).
+        (1, [5.0, 5.0]), (3, [5.0, 5.0]), (0, [5.0, 5.0, 5.0]), (2, [5.0, 5.0, 5.0]),
+        # A decaying spike: its second sample, 39x the mean leverage, under the limit, hides the first.
+        (0, [5.0, 2.5]), (4, [5.0, 2.5]),
+        # Three samples, each past the limit and each hidden by the other two.
+        (2, [5.0, 3.0, 1.5]), (3, [5.0, 3.0, 1.5]),
+    ],
+)
+def test_a_spike_lasting_several_samples_is_left_out_whole(seed: int, spans: list[float]):
+    readings, truth = spiked_poses(seed, spans)
+    with pytest.raises(SfmnetError, match="no positive-definite solution"):
+        metric_solution(readings, 3, 3.0, offsets=True)
+    solution = closed_form_shape(readings, 3, 3.0, offsets=True)
+    assert torch.nonzero(solution.left_out)[:, 0].tolist() == list(range(GLITCH_POSE * 200, GLITCH_POSE * 200 + len(spans)))
+    assert gram_error(solution.shape, truth) < 0.01
+
+
 def test_clean_rows_are_all_kept():
     readings, truth = held_poses(0, glitch_spans=0.0)
     solution = closed_form_shape(readings, 3, 3.0, offsets=True)
@@ -96,20 +126,23 @@ def capped_session(seed: int, rows: int = 1000, half_angle: float = 35.0, snr: f
     return torch.from_numpy(readings), shape
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_lone_rows_far_from_the_rest_that_agree_with_them_are_kept(seed: int):
+@pytest.mark.parametrize(("seed", "snr"), [(0, 50.0), (1, 50.0), (2, 50.0), (3, 50.0), (19, 20.0), (31, 20.0)])
+def test_lone_rows_far_from_the_rest_that_agree_with_them_are_kept(seed: int, snr: float):
     """Three known loads held once beside a thousand rows in a 35-degree cap (a hostile tester's session): each has
     87-110x the mean leverage, past the limit, and leaving them out on leverage alone took the start 28 % off (seed 0)
     or refused the known loads as contradictory (seed 1). The rest of the rows predict them: they stay, and hold the
-    start (3-17 % off in S^T S) where without them it is 65-72 % off."""
-    readings, truth = capped_session(seed)
+    start (3-17 % off in S^T S) where without them it is 65-72 % off. At SNR 20, seeds 19 and 31, the three together
+    move the cap's fit by over the take-over limit, though by less than three times it: they stay, though there the
+    cap at SNR 20 leaves the closed form 80-800 % off with them or without (and the run refuses the known loads)."""
+    readings, truth = capped_session(seed, snr=snr)
     points = truncated_svd_factors(readings, 3, centre=True).motion
     design = metric_design(points, centre_free=True)
     leverage = design_leverage(design, design.T @ design)
     assert bool((leverage[-3:] > leverage_limit(design.shape[1], len(design))).all())
     solution = closed_form_shape(readings, 3, 9.81, offsets=True)
     assert not bool(solution.left_out.any())
-    assert gram_error(solution.shape, truth) < 0.2 < 0.6 < gram_error(metric_solution(readings[:-3], 3, 9.81, True)[0], truth)
+    if snr == 50.0:
+        assert gram_error(solution.shape, truth) < 0.2 < 0.6 < gram_error(metric_solution(readings[:-3], 3, 9.81, True)[0], truth)
 
 
 @pytest.mark.parametrize("flipped", [False, True])

@@ -26,6 +26,7 @@ import torch
 
 from sfmnet.data.rows import IntervalSums
 from sfmnet.linalg.chi_square import chi_square_quantile, chi_square_z, robust_noise_variance
+from sfmnet.linalg.frame import SPAN_TOLERANCE
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
 from sfmnet.linalg.uncertainty import relative_matrix_std
@@ -102,6 +103,11 @@ MAX_REFINEMENT_DISAGREEMENT = 2.0
 # Known loads (pose means) may sit this many predicted standard errors from where the calibration puts
 # them (a chi-square tail of ~3e-4 for one known pose in 3 axes).
 MAX_KNOWN_LOAD_RATIO = 2.5
+# The known loads must tell the frame from its mirror image by this many noise standard deviations (:func:`mirror_z`; a
+# one-sided tail of ~1e-3). Three known loads held for one row each, at random orientations on the sphere at SNR 20: 10-12
+# where they span the axes well; 2.1 where their third singular value is 8 % of the first (the matrix 10 % off, 2x
+# its bars), 1.0 at 9 % (the frame mirrored: 158 % off, 28x its bars, trusted before this check).
+MIN_MIRROR_Z = 3.0
 
 
 # Fitted row by row (untied directions), rows held at few poses leave the error bars too small until the poses
@@ -403,6 +409,30 @@ def known_load_misfit(
     return rms, spread / predicted if predicted > 0 else math.inf
 
 
+def mirror_z(
+    calibrated: torch.Tensor, known: torch.Tensor, matrix: torch.Tensor, noise: float, groups: torch.Tensor | None
+) -> float:
+    """How far the known loads tell the frame from its mirror image, in noise standard deviations: ``sqrt(sigma_min / v)``.
+
+    The frame is the orthogonal transform that best takes the calibrated known loads onto the given ones
+    (Procrustes on ``M = sum_k c_k ebar_k^T l_k``, ``ebar_k`` the mean calibrated load of the ``c_k`` rows of known
+    load ``l_k``). The best transform of the other determinant, the mirror image across the plane the known loads
+    span least, fits them worse by ``4 sigma_min(M)`` in the count-weighted sum of squares; a row's load noise is
+    ``v = noise^2 |C|_F^2 / n`` per axis. So ``2 z^2`` is the log-likelihood the known loads give the chosen image
+    over its mirror. Known loads that span every axis well give tens; loads nearly in one plane, a few.
+
+    Args:
+        calibrated: ``k x n``, ``C (z_k - o)`` of the known rows; known: ``k x n`` their loads.
+        matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (each row alone).
+    """
+    _, index = torch.unique(known if groups is None else groups, dim=0, return_inverse=True)
+    means, _, counts = group_means(calibrated, index)
+    loads, _, _ = group_means(known, index)
+    smallest = float(torch.linalg.svdvals((counts[:, None] * means).T @ loads)[-1])
+    variance = noise**2 * float(matrix.norm()) ** 2 / matrix.shape[0]
+    return math.sqrt(smallest / variance) if variance > 0 else math.inf
+
+
 def goodness_of_fit(
     residuals: torch.Tensor,
     readings: torch.Tensor,
@@ -645,6 +675,20 @@ def goodness_of_fit(
             force, torque = (float(error[:, axes].pow(2).mean().sqrt()) for axes in (slice(0, 3), slice(3, None)))
             metrics.update({"goodness/known_load_force_rms": force, "goodness/known_load_torque_rms": torque})
             distance = f"{force:.4g} {force_unit} (torque {torque:.4g} {torque_unit})"
+        spans = torch.linalg.svdvals(known_loads)
+        # Known loads in n - 1 directions leave the mirror to data.mirror_hint, which frame_rotation required; a
+        # wrench's frame is not an orthogonal transform of its six axes.
+        spanning = len(known_loads) >= matrix.shape[0] and float(spans[-1]) > SPAN_TOLERANCE * float(spans[0])
+        if spanning and direction_dims == matrix.shape[0]:
+            z = mirror_z(calibrated_known, known_loads, matrix, fit_noise, None if groups is None else groups[known])
+            metrics["goodness/mirror_z"] = z
+            if z < MIN_MIRROR_Z:
+                warnings.append(
+                    f"the known loads hardly leave one plane: the frame's mirror image across it fits them within {z:.1f} "
+                    f"noise standard deviations ({MIN_MIRROR_Z:g} or more tell the two apart), so the calibration may be "
+                    "mirrored, its loads' components across that plane of the wrong sign; give a known load well out of "
+                    "the plane of the others, or hold the known loads for more rows"
+                )
         if ratio > MAX_KNOWN_LOAD_RATIO:
             warnings.append(
                 f"the known loads sit {distance} RMS from where the calibration puts them, {ratio:.1f}x "
