@@ -105,8 +105,8 @@ MAX_REFINEMENT_DISAGREEMENT = 2.0
 MAX_KNOWN_LOAD_RATIO = 2.5
 # The known loads must tell the frame from its mirror image by this many noise standard deviations (:func:`mirror_z`; a
 # one-sided tail of ~1e-3). Three known loads held for one row each, at random orientations on the sphere at SNR 20: 10-12
-# where they span the axes well; 2.1 where their third singular value is 8 % of the first (the matrix 10 % off, 2x
-# its bars), 1.0 at 9 % (the frame mirrored: 158 % off, 28x its bars, trusted before this check).
+# where they span the axes well; 2.1 where their third singular value is 5 % of the first (the matrix 10 % off, 2x
+# its bars), 1.0 at 6 % (the frame mirrored: 158 % off, 28x its bars, trusted before this check).
 MIN_MIRROR_Z = 3.0
 
 
