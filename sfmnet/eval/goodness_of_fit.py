@@ -423,11 +423,11 @@ def mirror_z(
 
     Args:
         calibrated: ``k x n``, ``C (z_k - o)`` of the known rows; known: ``k x n`` their loads.
-        matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (each row alone).
+        matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (rows given one load together).
     """
-    _, index = torch.unique(known if groups is None else groups, dim=0, return_inverse=True)
-    means, _, counts = group_means(calibrated, index)
-    loads, _, _ = group_means(known, index)
+    labels = torch.unique(known, dim=0, return_inverse=True)[1] if groups is None else groups
+    means, _, counts = group_means(calibrated, labels)
+    loads, _, _ = group_means(known, labels)
     smallest = float(torch.linalg.svdvals((counts[:, None] * means).T @ loads)[-1])
     variance = noise**2 * float(matrix.norm()) ** 2 / matrix.shape[0]
     return math.sqrt(smallest / variance) if variance > 0 else math.inf

@@ -370,13 +370,14 @@ def takeover_screen(design: torch.Tensor) -> torch.Tensor:
     if not len(candidates):
         return found
     bulk = leverage <= SUSPECT_FRACTION * limit
-    bulk_fit = LeastSquaresRows.of(design[bulk])
-    bulk_residual = 1 - design[bulk] @ bulk_fit.solution()
+    ones = design.new_ones(int(bulk.sum()))
+    bulk_residual = ones - design[bulk] @ torch.linalg.lstsq(design[bulk], ones[:, None]).solution[:, 0]
     # Floored at a relative 1e-8 so that exact (simulated) readings do not score rounding.
     variance = max(robust_noise_variance(bulk_residual**2, torch.ones_like(bulk_residual)), 1e-16)
     high = ~bulk
     high[candidates] = False
     # The others' normal equations built up from the bulk's, not taken down from every row's, which a glitch dominates.
+    bulk_fit = LeastSquaresRows.of(design[bulk])
     rest_fit = bulk_fit.plus(design[high])
     for i, candidate in enumerate(candidates):
         peers = design[torch.cat([candidates[:i], candidates[i + 1 :]])]
@@ -406,10 +407,6 @@ class LeastSquaresRows:
 
     def plus(self, design: torch.Tensor) -> LeastSquaresRows:
         return LeastSquaresRows(self.normal + design.T @ design, self.right + design.sum(dim=0), self.rows + len(design))
-
-    def solution(self) -> torch.Tensor:
-        """``c = N^+ b``."""
-        return torch.linalg.pinv(self.normal, hermitian=True) @ self.right
 
 
 def takeover_fraction(group: torch.Tensor, others: LeastSquaresRows, variance: float) -> float:
