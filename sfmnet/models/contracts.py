@@ -56,6 +56,9 @@ class Learner(Protocol):
     def prepare_step(self, batch: Any) -> None:
         """Before each optimiser step on ``batch`` (e.g. the marginal refinement's distribution of directions)."""
 
+    def end_fit(self, recording: Any) -> None:
+        """After the last step, on the whole recording (e.g. the marginal refinement's frame turned to its known loads)."""
+
     def monitor(self) -> dict[str, float]:
         """Figures logged every epoch beside the loss (e.g. an autoencoder's angle to the PCA subspace)."""
 

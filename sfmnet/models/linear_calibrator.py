@@ -97,6 +97,9 @@ class LinearCalibrator(nn.Module, ABC):
     def prepare_step(self, batch: Batch) -> None:
         """Nothing to do before a step (the marginal refinement overrides this)."""
 
+    def end_fit(self, recording: CalibrationRecording) -> None:
+        """Nothing to do after the last step (the marginal refinement overrides this)."""
+
     def monitor(self) -> dict[str, float]:
         return {}
 

@@ -102,6 +102,9 @@ class SensorimotorLearner(nn.Module, ABC):
     def prepare_step(self, batch: tuple[torch.Tensor, torch.Tensor]) -> None:
         """Nothing to do before a step."""
 
+    def end_fit(self, data: SensorimotorData) -> None:
+        """Nothing to do after the last step."""
+
     def monitor(self) -> dict[str, float]:
         return {}
 

@@ -47,6 +47,9 @@ class StreamingPCA(nn.Module):
     def prepare_step(self, batch: RowBlock) -> None:
         """Nothing to do before a step."""
 
+    def end_fit(self, data: RowData) -> None:
+        """Nothing to do after the last step."""
+
     def monitor(self) -> dict[str, float]:
         return {}
 

@@ -104,7 +104,7 @@ def refine_in_process(
     For benchmarks and tests that fit thousands of small sessions, where the Trainer's start-up
     would dominate: the closed form (``initialise``), then per epoch the model's own alternation,
     or its ``prepare_step`` followed by one step of ``optimizer`` (built from the parameters);
-    ``after_epoch`` is called after each (e.g. to time the refinement).
+    ``after_epoch`` is called after each (e.g. to time the refinement), and the model's ``end_fit`` after the last.
     """
     if initialise:
         model.initialise(recording)
@@ -129,4 +129,5 @@ def refine_in_process(
         epoch()
         if after_epoch is not None:
             after_epoch()
+    model.end_fit(recording)
     return model

@@ -88,6 +88,10 @@ class LearnerModule(L.LightningModule):
         self.log("loss", terms["loss"].detach(), on_epoch=True, prog_bar=True, logger=False, batch_size=size)
         return terms["loss"] if self.automatic_optimization else None
 
+    def on_train_end(self) -> None:
+        # Also where a resumed fit had no epochs left: the model's last touches are idempotent.
+        self.model.end_fit(self.recording)
+
     def on_train_epoch_end(self) -> None:
         if self.mode is FitMode.PASSES:
             self.model.reduce(self.trainer.strategy)
