@@ -17,6 +17,23 @@ def anisotropic_shape(gains: list[float], p: int, seed: int) -> torch.Tensor:
     return left @ torch.diag(torch.tensor(gains, dtype=torch.float64)) @ right[: len(gains)]
 
 
+def sphere_session(
+    shape: np.ndarray, rows: int, magnitude: float, snr: float, known_noise_share: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Readings (``rows x p``, offsets included) of a mass turned uniformly over the sphere at ``snr``, the first three
+    rows replaced by known loads along the axes read at ``known_noise_share`` of the noise; and the loads (NaN where
+    unknown)."""
+    directions = rng.normal(size=(rows, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    offset = rng.normal(size=shape.shape[1])
+    noise = magnitude * np.sqrt((shape**2).sum(axis=1).mean()) / snr
+    readings = magnitude * directions @ shape + offset + noise * rng.normal(size=(rows, shape.shape[1]))
+    loads = np.full((rows, 3), np.nan)
+    loads[:3] = magnitude * np.eye(3)
+    readings[:3] = loads[:3] @ shape + offset + known_noise_share * noise * rng.normal(size=(3, shape.shape[1]))
+    return readings, loads
+
+
 def test_unit_motion_is_the_nearest_point_of_the_sphere():
     shape = anisotropic_shape([10.0, 1.0, 0.1], 6, seed=0)
     generator = torch.Generator().manual_seed(1)
@@ -62,17 +79,9 @@ def test_known_load_rotation_turns_the_frame_back():
 
 def test_a_sensor_with_unequal_gains_calibrates_as_well_as_the_penalised_fit():
     """Gains 10 : 1 : 0.1: normalising the least-squares load leaned to the weak axis (38 % matrix error, 1,000+ outliers)."""
-    rng = np.random.default_rng(0)
     shape = anisotropic_shape([10.0, 1.0, 0.1], 6, seed=0).numpy()
-    rows, magnitude = 2000, 9.81
-    directions = rng.normal(size=(rows, 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    offset = rng.normal(size=6)
-    noise = 0.01 * magnitude * np.sqrt((shape**2).sum(axis=1).mean())
-    readings = magnitude * directions @ shape + offset + noise * rng.normal(size=(rows, 6))
-    loads = np.full((rows, 3), np.nan)
-    loads[:3] = magnitude * np.eye(3)
-    readings[:3] = loads[:3] @ shape + offset + noise / 30 * rng.normal(size=(3, 6))
+    magnitude = 9.81
+    readings, loads = sphere_session(shape, 2000, magnitude, 100, 1 / 30, np.random.default_rng(0))
     truth = np.linalg.pinv(shape).T
     errors = {}
     for refinement in ("alternation", "penalty"):
@@ -105,17 +114,9 @@ def test_the_marginal_ends_in_the_frame_its_known_loads_fit_best():
     """The marginal's grid sum prefers some frames where a direction's spread (3 degrees at SNR 20) is under the grid's
     spacing, by more than three known loads read once can outweigh: the fit stopped 1-5 degrees from the frame they fit
     best, which its error bars assume (1.7x too small). Through the Python API, so through the trainer's end of fit."""
-    rng = np.random.default_rng(5)
     shape = anisotropic_shape([1.0, 0.9, 0.8], 6, seed=5).numpy()
-    rows, magnitude = 600, 9.81
-    directions = rng.normal(size=(rows, 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    offset = rng.normal(size=6)
-    noise = magnitude * np.sqrt((shape**2).sum(axis=1).mean()) / 20
-    readings = magnitude * directions @ shape + offset + noise * rng.normal(size=(rows, 6))
-    loads = np.full((rows, 3), np.nan)
-    loads[:3] = magnitude * np.eye(3)
-    readings[:3] = loads[:3] @ shape + offset + noise * rng.normal(size=(3, 6))
+    magnitude = 9.81
+    readings, loads = sphere_session(shape, 600, magnitude, 20, 1.0, np.random.default_rng(5))
     calibration = sfmnet.calibrate(
         readings, magnitude, loads, axes=3, **{"model.refinement": "marginal", "model.marginal_grid": 1100}
     )
