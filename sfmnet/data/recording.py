@@ -88,6 +88,10 @@ class CalibrationRecording:
         """How many different known loads the rows hold (each gives ``n`` equations of the shape)."""
         return len(torch.unique(self.loads[self.known], dim=0))
 
+    def whole_batch(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Every row as one batch, as the data module deals them: row indices ``f``, readings ``f x p``, loads ``f x n``."""
+        return torch.arange(len(self.readings)), self.readings, self.loads
+
     def without(self, rows: torch.Tensor) -> CalibrationRecording:
         """This recording with the boolean ``f`` mask ``rows`` removed (the mirror hint dropped)."""
         keep = ~rows

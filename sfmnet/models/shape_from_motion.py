@@ -316,7 +316,7 @@ class ShapeFromMotion(LinearCalibrator):
             refinement="alternation", alternation_steps=self.alternation_steps, tie_directions=self.tie_directions,
         )
         beside.initialise(recording)
-        batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
+        batch = recording.whole_batch()
         for _ in range(ALTERNATION_BESIDE_STEPS):
             beside.alternate(batch)
         return beside
@@ -455,7 +455,7 @@ class ShapeFromMotion(LinearCalibrator):
         """The law of directions ``learnt_law`` takes at the closed form (:meth:`update_law` once, the marginal set up
         from ``rms``): ``"uniform"`` where the held-out choice finds nothing the uniform law does not predict."""
         self.start_marginal(rms)
-        self.update_law((torch.arange(len(recording.readings)), recording.readings, recording.loads))
+        self.update_law(recording.whole_batch())
         law = self.law_choice[0]
         # The refinement chosen starts afresh: the marginal from the uniform law, as it always does.
         self.grid = self.log_prior = None
@@ -488,7 +488,7 @@ class ShapeFromMotion(LinearCalibrator):
         )
         if scan.likely_change <= 0:
             return False
-        beside.alternate((torch.arange(len(recording.readings)), recording.readings, recording.loads))
+        beside.alternate(recording.whole_batch())
         return beside.alternation_still_moving > ALTERNATION_WALKING_STEP
 
     @property
@@ -579,12 +579,11 @@ class ShapeFromMotion(LinearCalibrator):
         0.8-4.6 degrees from the known loads' fit and the error bars, which assume it there, 1.7x too small (method §3).
         """
         if self.refinement != "marginal" or len(self.direction_maps) != 1 or not bool(recording.known.any()):
-            return
+            return  # nothing turns, so the law learnt at the last step stands
         known = recording.known
         centred = recording.readings[known] / self.reading_scale - self.offset.detach()
-        shape = self.shape.detach()
-        self.shape.copy_(known_load_rotation(centred, recording.loads[known] / self.load_scale, shape) @ shape)
-        self.update_law((torch.arange(len(recording.readings)), recording.readings, recording.loads))
+        self.shape.copy_(self.turned_to_known_loads(centred, recording.loads[known] / self.load_scale, self.shape.detach()))
+        self.update_law(recording.whole_batch())
 
     @torch.no_grad()
     def update_law(self, batch: Batch) -> None:
@@ -953,9 +952,17 @@ class ShapeFromMotion(LinearCalibrator):
         # The weighted centred motion sums to zero, so the readings need no centring of their own.
         shape = torch.linalg.solve(weighted.T @ centred, weighted.T @ readings)
         offset = readings_mean - motion_mean @ shape
-        if self.constrained and len(self.direction_maps) == 1 and not bool(unknown.all()):
-            shape = known_load_rotation(readings[~unknown] - offset, motion[~unknown], shape) @ shape
+        if self.constrained:
+            shape = self.turned_to_known_loads(readings[~unknown] - offset, motion[~unknown], shape)
         return torch.cat([shape, offset[None]])
+
+    def turned_to_known_loads(self, centred: torch.Tensor, loads: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
+        """``R S`` with ``R`` the rotation that best fits the known rows (:func:`known_load_rotation`), where one mass's
+        frame rests on them; else ``S``. ``centred``: their readings minus offsets, ``k x p``; ``loads``: ``k x n``
+        (both scaled as the parameters are); ``shape``: ``S``, ``n x p``."""
+        if len(self.direction_maps) != 1 or not len(loads):
+            return shape
+        return known_load_rotation(centred, loads, shape) @ shape
 
     @torch.no_grad()
     def alternate(self, batch: Batch) -> dict[str, torch.Tensor]:

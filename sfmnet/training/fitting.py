@@ -108,7 +108,7 @@ def refine_in_process(
     """
     if initialise:
         model.initialise(recording)
-    batch = (torch.arange(len(recording.readings)), recording.readings, recording.loads)
+    batch = recording.whole_batch()
     if model.fit_mode() is FitMode.ALTERNATION:
         def epoch() -> None:
             model.alternate(batch)
