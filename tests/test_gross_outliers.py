@@ -12,6 +12,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+import sfmnet
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.factorisation import (
     closed_form_shape,
@@ -143,6 +144,19 @@ def test_lone_rows_far_from_the_rest_that_agree_with_them_are_kept(seed: int, sn
     assert not bool(solution.left_out.any())
     if snr == 50.0:
         assert gram_error(solution.shape, truth) < 0.2 < 0.6 < gram_error(metric_solution(readings[:-3], 3, 9.81, True)[0], truth)
+
+
+@pytest.mark.parametrize("seed", [19, 31])
+def test_right_known_loads_beside_a_cap_too_narrow_to_place_them_are_refused_for_the_cap(seed: int):
+    """The sessions above at SNR 20: the cap's readings barely span 3 axes (rank gap 1.3), the closed form is 80-800 %
+    off and puts a right known load 41-43 degrees from the others. The refusal had blamed the known loads ("they
+    contradict each other; check their columns, signs and rows"); it names the readings' weak span first."""
+    readings, _ = capped_session(seed, snr=20.0)
+    loads = np.full((len(readings), 3), np.nan)
+    loads[-3:] = -9.81 * np.eye(3)
+    with pytest.raises(SfmnetError, match=r"^the readings barely span 3 load axes \(rank gap 1\.\d\d, under 3\).*"
+                       r"known load \d of 3 lies \d+ degrees.*cover too little of the sphere"):
+        sfmnet.calibrate(readings.numpy(), 9.81, loads, axes=3)
 
 
 @pytest.mark.parametrize("flipped", [False, True])

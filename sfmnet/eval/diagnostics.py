@@ -16,7 +16,7 @@ from sfmnet.eval.goodness_of_fit import (
     within_group_noise,
 )
 from sfmnet.linalg.directions import distinct_directions, median_angle_from_poses
-from sfmnet.linalg.factorisation import known_load_equations, metric_unknowns
+from sfmnet.linalg.factorisation import WARN_RANK_GAP, known_load_equations, metric_unknowns, readings_rank_gap
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.held_poses import held_pose_clusters
@@ -24,8 +24,7 @@ from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, load_error_rms
 from sfmnet.models.linear_calibrator import LinearCalibrator
 
-# Below these the data hardly supports a rank-n calibration (see README, "Diagnostics").
-WARN_RANK_GAP = 3.0
+# Below this the orientations leave part of the load space unvisited (see README, "Diagnostics").
 WARN_COVERAGE = 0.5
 # Poses found in the readings that scatter more than this many times the fit's noise are not held poses: held rows
 # scatter by the reading noise alone, which no fit's residuals fall below (lobes of a continuous sweep do).
@@ -55,14 +54,14 @@ def calibration_diagnostics(
         (goodness-of-fit ones included); the goodness of fit itself.
     """
     n = recording.rank
-    singular = model.singular_values
     metrics: dict[str, float] = {}
     warnings: list[str] = []
-    if len(singular) > n:
-        metrics["rank_gap"] = float(singular[n - 1] / singular[n])
-        if metrics["rank_gap"] < WARN_RANK_GAP:
+    rank_gap = readings_rank_gap(model.singular_values, n)
+    if rank_gap is not None:
+        metrics["rank_gap"] = rank_gap
+        if rank_gap < WARN_RANK_GAP:
             warnings.append(
-                f"rank gap {metrics['rank_gap']:.2f} (< {WARN_RANK_GAP:g}): the readings are barely rank {n}; "
+                f"rank gap {rank_gap:.2f} (< {WARN_RANK_GAP:g}): the readings are barely rank {n}; "
                 "the sensor is noisy or nonlinear, or the loads do not span every axis"
             )
     matrix = model.calibration_matrix()

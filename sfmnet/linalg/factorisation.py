@@ -455,6 +455,23 @@ def gross_outlier_note(left_out: int, rows: int, robust: bool = False) -> str:
     )
 
 
+# Below this the readings hardly support a rank-n calibration (README, "Diagnostics"): the load space's weakest
+# direction stands barely above the noise, from too little of the sphere visited or too noisy a sensor.
+WARN_RANK_GAP = 3.0
+
+
+def readings_rank_gap(singular_values: torch.Tensor, rank: int) -> float | None:
+    """``sigma_n / sigma_(n+1)`` of the readings (about their mean where offsets are fitted); None where ``p = n``.
+
+    Args:
+        singular_values: the readings' singular values, descending (``p`` of them, or fewer with fewer rows).
+        rank: ``n``, the load axes.
+    """
+    if len(singular_values) <= rank:
+        return None
+    return float(singular_values[rank - 1] / singular_values[rank])
+
+
 # Below this coverage the motion is (nearly) collinear or coplanar: good sessions measure
 # 0.55-0.9 even at SNR 2, degenerate ones with noise 0.01-0.18 (see tests).
 MIN_COVERAGE = 0.25

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import torch
 
 from sfmnet.errors import SfmnetError
+from sfmnet.linalg.factorisation import WARN_RANK_GAP
 
 # Singular values of the known loads below this fraction of the largest count as missing directions.
 SPAN_TOLERANCE = 1e-6
@@ -58,6 +59,7 @@ def frame_rotation(
     known_loads: torch.Tensor,
     hint_motion: torch.Tensor | None = None,
     hint: MirrorHint | None = None,
+    rank_gap: float | None = None,
 ) -> torch.Tensor:
     """The orthogonal transform ``R`` that takes recovered loads into the frame of the known loads.
 
@@ -70,6 +72,8 @@ def frame_rotation(
         known_loads: ``k x n``, the same loads as the user knows them.
         hint_motion: ``1 x n``, the recovered load of the hint sample (with ``hint``).
         hint: which side of the mirror the hint sample lies on.
+        rank_gap: the readings' (:func:`~sfmnet.linalg.factorisation.readings_rank_gap`), for
+            :func:`check_agreement`'s message.
 
     Returns:
         ``R``, ``n x n`` orthogonal, so that ``M <- M R`` and ``S <- R^T S``.
@@ -89,7 +93,7 @@ def frame_rotation(
     u, _, vt = torch.linalg.svd(estimated_loads.T @ known_loads)
     rotation = u @ vt
     if span == n:
-        return check_agreement(estimated_loads @ rotation, known_loads, rotation)
+        return check_agreement(estimated_loads @ rotation, known_loads, rotation, rank_gap)
     if hint is None or hint_motion is None:
         raise SfmnetError(
             f"{span} known loads fix the {n}-axis frame only up to a mirror image: set "
@@ -116,7 +120,7 @@ def frame_rotation(
             f"leave free is ({normal})), or give {n} known loads spanning every axis"
         )
     rotation = rotation if agrees[0] else mirrored
-    return check_agreement(estimated_loads @ rotation, known_loads, rotation)
+    return check_agreement(estimated_loads @ rotation, known_loads, rotation, rank_gap)
 
 
 # Known loads set to 0.2 degrees sit well inside this, and so does a nonlinear real sensor's
@@ -124,8 +128,14 @@ def frame_rotation(
 MAX_DISAGREEMENT_DEG = 30.0
 
 
-def check_agreement(placed: torch.Tensor, known_loads: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
+def check_agreement(
+    placed: torch.Tensor, known_loads: torch.Tensor, rotation: torch.Tensor, rank_gap: float | None = None
+) -> torch.Tensor:
     """Return ``rotation`` unless a known load lies far from where the readings put it once the frame is fitted.
+
+    Args:
+        rank_gap: the readings' ``sigma_n / sigma_(n+1)``; under :data:`WARN_RANK_GAP` the readings barely span
+            the load space, which places the known loads badly however right they are, so the message says so first.
 
     Raises:
         SfmnetError: the known loads contradict each other (their angles differ from the readings').
@@ -133,15 +143,25 @@ def check_agreement(placed: torch.Tensor, known_loads: torch.Tensor, rotation: t
     cosine = (placed * known_loads).sum(dim=1) / (placed.norm(dim=1) * known_loads.norm(dim=1))
     angles = torch.rad2deg(torch.arccos(cosine.clamp(-1.0, 1.0)))
     worst = int(angles.argmax())
-    if float(angles[worst]) > MAX_DISAGREEMENT_DEG:
-        size = float(placed[worst].norm() / known_loads[worst].norm())
+    if float(angles[worst]) <= MAX_DISAGREEMENT_DEG:
+        return rotation
+    n = known_loads.shape[1]
+    where = (
+        f"known load {worst + 1} of {len(known_loads)} lies {float(angles[worst]):.0f} degrees from where the readings "
+        f"put it (at {100 * float(placed[worst].norm() / known_loads[worst].norm()):.0f} % of its size) relative to the "
+        "other known loads"
+    )
+    if rank_gap is not None and rank_gap < WARN_RANK_GAP:
         raise SfmnetError(
-            f"known load {worst + 1} of {len(known_loads)} lies {float(angles[worst]):.0f} degrees from where the readings "
-            f"put it (at {100 * size:.0f} % of its size) relative to the other known loads: the known loads contradict "
-            "each other, or their rows' readings are too noisy to place them (far from 100 % says so); check their "
-            "columns, signs and rows"
+            f"the readings barely span {n} load axes (rank gap {rank_gap:.2f}, under {WARN_RANK_GAP:g}), too weakly to "
+            f"place the known loads, so {where}: the orientations cover too little of the "
+            f"{'circle' if n == 2 else 'sphere'} or the sensor is too noisy; turn the mass through more of it or load "
+            "the sensor more heavily, then check the known loads' columns, signs and rows"
         )
-    return rotation
+    raise SfmnetError(
+        f"{where}: the known loads contradict each other, or their rows' readings are too noisy to place them (far "
+        "from 100 % says so); check their columns, signs and rows"
+    )
 
 
 def skew_generators(n: int, dtype: torch.dtype) -> torch.Tensor:

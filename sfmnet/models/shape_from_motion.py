@@ -13,7 +13,13 @@ from sfmnet.errors import SfmnetError
 from sfmnet.linalg.anderson import AndersonAcceleration
 from sfmnet.linalg.chi_square import robust_noise_variance
 from sfmnet.linalg.directions import direction_grid
-from sfmnet.linalg.factorisation import closed_form_shape, gross_outlier_note, metric_unknowns, require_coverage
+from sfmnet.linalg.factorisation import (
+    closed_form_shape,
+    gross_outlier_note,
+    metric_unknowns,
+    readings_rank_gap,
+    require_coverage,
+)
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
 from sfmnet.linalg.uncertainty import residual_noise_variance
 from sfmnet.linalg.group_means import group_means
@@ -1059,7 +1065,10 @@ class ShapeFromMotion(LinearCalibrator):
                     f"mirror_hint.sample is {hint.sample} but there are {len(unknown_rows)} unknown-orientation rows"
                 )
             hint_motion = self.motion_of(recording.readings[unknown_rows[hint.sample]][None])
-        rotation = frame_rotation(self.motion_of(recording.readings[known]), recording.loads[known], hint_motion, hint)
+        rotation = frame_rotation(
+            self.motion_of(recording.readings[known]), recording.loads[known], hint_motion, hint,
+            readings_rank_gap(self.singular_values, recording.rank),
+        )
         self.shape.copy_(rotation.T @ self.shape)
 
 

@@ -20,6 +20,7 @@ from sfmnet.linalg.factorisation import (
     metric_design,
     metric_shape,
     metric_unknowns,
+    readings_rank_gap,
     require_coverage,
 )
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
@@ -426,7 +427,10 @@ class StreamedShapeFromMotion(LinearCalibrator):
             return
         hint = self.data.mirror_hint
         hint_motion = self.motion_of(self.data.hint_reading[None]) if hint is not None else None
-        rotation = frame_rotation(self.motion_of(self.known_readings()), self.known_loads(), hint_motion, hint)
+        rotation = frame_rotation(
+            self.motion_of(self.known_readings()), self.known_loads(), hint_motion, hint,
+            readings_rank_gap(self.singular_values, self.rank),
+        )
         self.shape.copy_(rotation.T @ self.shape)
 
     def solve_alternation(self) -> None:
