@@ -252,14 +252,17 @@ def test_a_wrong_known_load_is_flagged(stream: Path, tmp_path: Path):
     assert any("known loads sit" in warning for warning in calibration["warnings"])
 
 
-def test_no_known_loads_calibrates_up_to_a_rotation(stream: Path, tmp_path: Path):
-    no_loads = ["data.load_columns=[]", "data.axes=[x,y,z]", "data.channel_columns=[s0,s1,s2,s3,s4,s5,s6,s7]"]
-    # The stream does not tie a static interval's rows to one direction: compare like with like.
-    calibration, metrics = calibrate(stream, tmp_path / "run", *no_loads, "model.tie_directions=false")
+@pytest.mark.parametrize("tied", [True, False])
+def test_no_known_loads_calibrates_up_to_a_rotation(stream: Path, tmp_path: Path, tied: bool):
+    """In memory and streamed, a static interval's rows tied to one direction (the default) or each row its own."""
+    no_loads = ["data.load_columns=[]", "data.axes=[x,y,z]", "data.channel_columns=[s0,s1,s2,s3,s4,s5,s6,s7]",
+                f"model.tie_directions={str(tied).lower()}"]
+    calibration, metrics = calibrate(stream, tmp_path / "run", *no_loads, "model.refinement=alternation")
     assert calibration["axes"] == ["x", "y", "z"] and calibration["frame"].startswith("arbitrary")
     assert calibration["load_unit"] == "N" and metrics["matrix_std_relative"] < 0.05
     streamed, _ = calibrate(stream, tmp_path / "stream", "experiment=calibrate_stream", *no_loads)
     assert streamed["method"] == "streamed_shape_from_motion"
+    assert calibration["tied_directions"] is tied and streamed["tied_directions"] is tied
     # The frame is arbitrary, the metric C^T C is not: the same from memory and from the stream.
     gram = [np.array(c["matrix"]).T @ np.array(c["matrix"]) for c in (calibration, streamed)]
     assert np.abs(gram[0] - gram[1]).max() < 1e-6 * np.abs(gram[0]).max()

@@ -606,8 +606,8 @@ def goodness_of_fit(
             remedy = (
                 "a robust fit (model.robust=huber) fits every row on its own: leave it off, or remove the outlying rows"
                 if robust
-                else "calibrate in memory (calibrate_csv) with data.group_column giving each row's pose or a time column, "
-                "whose static intervals tie each pose's rows to one direction (calibrate_stream fits every row on its own)"
+                else "give a time column, whose static intervals tie each pose's rows to one direction (in memory or "
+                "streamed), or in memory (calibrate_csv) data.group_column giving each row's pose"
             )
             warnings.append(
                 f"the rows were held at only {equations} orientations (poses) and each row's direction was fitted on its "

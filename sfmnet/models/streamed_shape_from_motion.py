@@ -69,7 +69,9 @@ class StreamedShapeFromMotion(LinearCalibrator):
        positive-definite solution, passes 1 and 2 are read again without the rows whose leverage
        in it was extreme (method §2, "A glitch").
     3. Each further pass is one alternation round (``refinement="alternation"``):
-       ``u_j = argmin_{|u|=1} |z_j - o - F u S|`` (:func:`unit_motion`), then
+       ``u_j = argmin_{|u|=1} |z_j - o - F u S|`` (:func:`unit_motion`), or, with static intervals and
+       ``tie_directions``, one direction per interval from its mean reading (method §5, tied directions: pass 1's
+       sums per interval hold it), then
        ``[S; o] = solve(A, B)`` with ``A = [M 1]^T [M 1]`` and ``B = [M 1]^T Z`` summed over the pass, known loads as their rows' motion, then the
        frame turned to fit the known loads (:func:`known_load_rotation`); Anderson-accelerated
        across passes, stopped once a round moves the parameters by less than ``tolerance``
@@ -82,6 +84,9 @@ class StreamedShapeFromMotion(LinearCalibrator):
     Args:
         estimate_offset: learn channel offsets (ellipsoid closed form); else tared readings.
         refinement: ``"alternation"`` (default) or ``"closed_form"`` (stop after pass 2).
+        tie_directions: the rows of one static interval share one direction, as in memory; untied, each row's
+            direction is its own parameter, whose bias (``(n - 1) / (2 SNR^2)`` of the shape) does not shrink with
+            the rows while the error bars do.
         tolerance: relative parameter change at which the alternation has converged.
         sample_rows: rows kept (every ``k``-th) for the Cramer-Rao error bars and figures.
         max_known_rows: known-load rows gathered in memory (a few are the point of the method).
@@ -96,6 +101,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         self,
         estimate_offset: bool = True,
         refinement: str = "alternation",
+        tie_directions: bool = True,
         tolerance: float = 1e-9,
         sample_rows: int = 100_000,
         max_known_rows: int = 10_000,
@@ -104,6 +110,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         if refinement not in REFINEMENTS:
             raise SfmnetError(f"model.refinement is '{refinement}': use one of {', '.join(REFINEMENTS)}")
         self.refinement = refinement
+        self.tie_directions = tie_directions
         self.tolerance = tolerance
         self.sample_rows = sample_rows
         self.max_known_rows = max_known_rows
@@ -185,6 +192,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
             self.residual_squares = torch.zeros(p, dtype=torch.float64)
             # Per static interval: sum of residuals and of the rows' residual degrees of freedom (the poses' means).
             self.interval_residuals = torch.zeros(self.intervals, p + 1, dtype=torch.float64)
+            self.pass_directions = self.interval_directions() if self.tied else None
 
     def accumulate(self, block: RowBlock) -> None:
         """Add one block (readings minus the data's shift) to this pass's sums; rows in motion are left out."""
@@ -250,6 +258,30 @@ class StreamedShapeFromMotion(LinearCalibrator):
         """The stream's static intervals (0 without them)."""
         return 0 if self.data.intervals is None else len(self.data.intervals)
 
+    @property
+    def tied(self) -> bool:
+        """Whether a static interval's rows share one direction (``tie_directions`` and the stream has intervals)."""
+        return self.tie_directions and self.intervals > 0
+
+    def interval_directions(self) -> torch.Tensor:
+        """Each static interval's direction at the current fit, ``k x n``: ``argmin_{|u|=1} |zbar_k - o - F u S|`` of its
+        mean reading ``zbar_k`` (pass 1's sums), the exact constrained least squares of its rows (method §5)."""
+        p = len(self.data.channels)
+        means = self.interval_readings[:, 1 : p + 1] / self.interval_readings[:, :1].clamp_min(1)
+        centred = means - (self.physical_offset() - self.data.shift)
+        return unit_motion(centred, self.data.magnitude * self.physical_shape())
+
+    def row_directions(self, centred: torch.Tensor, interval: torch.Tensor, directions: torch.Tensor | None) -> torch.Tensor:
+        """Unit directions (``b x n``) of rows with readings less offsets ``centred`` (``b x p``): the interval's
+        (``directions``, :meth:`interval_directions`) for rows in one (``interval`` >= 0), where tied; each row's own
+        elsewhere."""
+        inside = interval >= 0 if directions is not None else torch.zeros_like(interval, dtype=torch.bool)
+        result = centred.new_empty(len(centred), self.rank)
+        result[~inside] = unit_motion(centred[~inside], self.data.magnitude * self.physical_shape())
+        if directions is not None:
+            result[inside] = directions[interval[inside]]
+        return result
+
     def interval_sums(self) -> IntervalSums | None:
         """Each static interval's sums over every row (:class:`IntervalSums`), the residuals those of the last
         alternation pass (at the fit, once it has converged); None without intervals or before that pass (the closed
@@ -283,14 +315,14 @@ class StreamedShapeFromMotion(LinearCalibrator):
     def accumulate_alternation(self, block: RowBlock, rows: torch.Tensor) -> None:
         centred = block.readings - (self.physical_offset() - self.data.shift)
         known = torch.isfinite(block.loads).all(dim=1)
-        magnitude = self.data.magnitude
-        motion = magnitude * unit_motion(centred, magnitude * self.physical_shape())
+        interval = self.interval_of(rows)
+        motion = self.data.magnitude * self.row_directions(centred, interval, self.pass_directions)
         motion[known] = block.loads[known]
         residual = centred - motion @ self.physical_shape()
         self.residual_squares += residual.pow(2).sum(dim=0)
         p, n = residual.shape[1], self.rank
         dof = torch.where(known, p, p - n + 1)[:, None].double()
-        self.add_to_intervals(self.interval_residuals, self.interval_of(rows), torch.cat([residual, dof], dim=1))
+        self.add_to_intervals(self.interval_residuals, interval, torch.cat([residual, dof], dim=1))
         design = torch.cat([motion, torch.ones_like(motion[:, :1])], dim=1) if self.estimate_offset else motion
         self.design_gram += cross_product(design)
         self.design_readings += cross_product(design, block.readings if self.estimate_offset else block.readings + self.data.shift)
@@ -484,7 +516,8 @@ class StreamedShapeFromMotion(LinearCalibrator):
         if growth > (RUNAWAY_GROWTH if self.converged else GROWTH_WHILE_UNCONVERGED):
             remedy = "more passes will not help; calibrate in memory with experiment=calibrate_csv (its auto refinement "
             return [runaway_warning(growth, remedy + "takes the marginal likelihood at low SNR) or keep model.refinement=closed_form")]
-        snr = self.signal_to_noise()
+        # Tied, the bias goes by a pose mean's SNR, sqrt(rows per direction) times a row's (method §5).
+        snr = self.signal_to_noise() * math.sqrt(self.rows_per_direction)
         if snr < ALTERNATION_BIASED_BELOW_SNR:
             return [low_snr_warning(snr, remedy)]
         return []
@@ -508,13 +541,13 @@ class StreamedShapeFromMotion(LinearCalibrator):
         unknown row), as ``ShapeFromMotion`` judges it by."""
         p, n = len(self.data.channels), self.rank
         variance = residual_noise_variance(
-            float(self.residual_squares.sum()), self.rows_read * p, self.unknown_rows_streamed, n, (n + self.estimate_offset) * p
+            float(self.residual_squares.sum()), self.rows_read * p, self.free_directions, n, (n + self.estimate_offset) * p
         )
         return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / math.sqrt(variance)
 
     def estimator_description(self) -> dict[str, Any]:
         """The streamed refinement that ran, for the calibration file."""
-        return {"refinement": self.refinement}
+        return {"refinement": self.refinement, "tied_directions": self.tied_fit}
 
     @property
     def fit_warnings(self) -> list[str]:
@@ -547,17 +580,62 @@ class StreamedShapeFromMotion(LinearCalibrator):
             groups=groups,
         )
 
+    @property
+    def tied_fit(self) -> bool:
+        """Whether the fit reported tied each static interval's rows to one direction (an alternation pass ran tied)."""
+        return self.tied and self.passes > 2
+
     def unknown_directions(self, recording: CalibrationRecording) -> tuple[torch.Tensor, torch.Tensor]:
         magnitude = self.data.magnitude
-        centred = recording.readings[~recording.known] - self.physical_offset()
-        directions = unit_motion(centred, magnitude * self.physical_shape())
+        unknown = ~recording.known
+        centred = recording.readings[unknown] - self.physical_offset()
+        tied = self.tied_fit and recording.groups is not None
+        interval = recording.groups[unknown] if tied else torch.full((len(centred),), -1, dtype=torch.long)
+        directions = self.row_directions(centred, interval, self.interval_directions() if tied else None)
         n = self.rank
         return directions, magnitude * torch.eye(n, dtype=directions.dtype).expand(len(directions), n, n)
+
+    def unknown_poses(self, recording: CalibrationRecording) -> torch.Tensor | None:
+        """The sample's unknown rows' static intervals where the fit tied them (a row outside every interval its own
+        pose); None untied."""
+        if not self.tied_fit or recording.groups is None:
+            return None
+        poses = recording.groups[~recording.known].clone()
+        outside = poses < 0
+        poses[outside] = self.intervals + torch.arange(int(outside.sum()))
+        return poses
 
     @property
     def unknown_rows_streamed(self) -> int:
         """Rows streamed (motion left out) whose load is unknown."""
         return self.rows_read - len(self.known)
+
+    def unknown_rows_per_interval(self) -> torch.Tensor:
+        """Each static interval's rows of unknown load (every row streamed, not the sample's), ``k``."""
+        known = self.interval_of(self.known[:, 0].long())
+        known_rows = torch.bincount(known[known >= 0], minlength=self.intervals).to(self.interval_readings.dtype)
+        return self.interval_readings[:, 0] - known_rows
+
+    @property
+    def free_directions(self) -> float:
+        """The directions the fit solved for: one per unknown row, or tied, one per static interval holding unknown
+        rows and one per unknown row outside them."""
+        if not self.tied_fit:
+            return float(self.unknown_rows_streamed)
+        per_interval = self.unknown_rows_per_interval()
+        return float((per_interval > 0).sum()) + self.unknown_rows_streamed - float(per_interval.sum())
+
+    @property
+    def rows_per_direction(self) -> float:
+        """Unknown rows per fitted direction, the harmonic mean over them (a pose's mean reading has ``sqrt`` of it
+        times a row's SNR; one long pose among many short ones does not make the short ones sharp); 1 untied."""
+        if not self.tied_fit:
+            return 1.0
+        per_interval = self.unknown_rows_per_interval()
+        counts = per_interval[per_interval > 0]
+        outside = self.unknown_rows_streamed - float(per_interval.sum())
+        directions = len(counts) + outside
+        return directions / (float((1 / counts).sum()) + outside) if directions > 0 else 1.0
 
     def unknown_row_weight(self, recording: CalibrationRecording) -> float:
         """The sample's unknown rows (:meth:`report_recording`) stand for every unknown row streamed."""
@@ -581,7 +659,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         return calibration_uncertainty(
             self.physical_shape(), loads[recording.known], directions, maps, self.estimate_offset,
             residual_sum_of_squares=residual, observations=self.rows_read * len(self.data.channels),
-            unknown_weight=weight,
+            unknown_weight=weight, free_directions=self.free_directions,
         )
 
     def residual_rms(self, recording: CalibrationRecording, loads: torch.Tensor | None = None) -> float:
