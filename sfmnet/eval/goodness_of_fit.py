@@ -390,23 +390,28 @@ def known_load_misfit(
 ) -> tuple[float, float]:
     """RMS of the known loads' errors (load units) and its ratio to what the reading noise predicts.
 
-    A reading's noise ``e`` (white, ``noise`` per channel) reaches the load as ``C e``, of expected
-    squared norm ``noise^2 |C|_F^2``. Rows recorded in one known pose (``groups``) are averaged first,
-    so a systematic error (a wrong load, a sign, a tilted jig) is not lost in the per-row noise:
-    ``ratio = sqrt(mean_k n_k |ebar_k|^2) / (noise |C|_F)``, ~1 when the known loads are right.
+    A reading's noise ``e`` (white, ``noise`` per channel) reaches the load as ``C e``, of covariance
+    ``noise^2 C C^T``. Rows recorded in one known pose (``groups``, or without them the rows given one known load)
+    are averaged first, so a systematic error (a wrong load, a sign, a tilted jig, a magnitude that disagrees with
+    the known loads) is not lost in the per-row noise, and each pose's mean error is whitened by that covariance, so
+    an error along a sensor's stiff axis is not lost in the noise of its weak one:
+    ``ratio = sqrt(mean_k n_k ebar_k^T (C C^T)^-1 ebar_k / n) / noise``, ~1 when the known loads are right.
 
     Args:
         calibrated: ``k x n``, ``C (z_k - o)`` of the known rows; known: ``k x n`` their loads.
-        matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (each row alone).
+        matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (rows given one load together).
     """
     error = calibrated - known
     rms = float(error.pow(2).mean().sqrt())
     if groups is None:
-        groups = torch.arange(len(error))
+        # Rows given one load were held in one pose: a per-row ratio dilutes their shared error by sqrt(rows).
+        groups = torch.unique(known, dim=0, return_inverse=True)[1]
     means, _, counts = group_means(error, groups)
-    spread = math.sqrt(float((counts * means.pow(2).sum(dim=1)).mean()))
-    predicted = noise * float(matrix.norm())
-    return rms, spread / predicted if predicted > 0 else math.inf
+    if not noise > 0:
+        return rms, math.inf
+    whitened = torch.linalg.solve_triangular(torch.linalg.cholesky(matrix @ matrix.T), means.T, upper=False)
+    spread = math.sqrt(float((counts * whitened.pow(2).sum(dim=0)).mean()) / matrix.shape[0])
+    return rms, spread / noise
 
 
 def mirror_z(
@@ -692,6 +697,7 @@ def goodness_of_fit(
         if ratio > MAX_KNOWN_LOAD_RATIO:
             warnings.append(
                 f"the known loads sit {distance} RMS from where the calibration puts them, {ratio:.1f}x "
-                "what the noise explains: a known load is wrong (column, sign, row) or was applied differently"
+                "what the noise explains: a known load is wrong (column, sign, row) or was applied differently, or the "
+                "magnitude given (data.magnitude) is not the known loads' own"
             )
     return GoodnessOfFit(metrics=metrics, warnings=warnings, outlier_rows=outlier_rows)
