@@ -94,6 +94,11 @@ def calibrate(
         known = as_matrix(loads, "loads")
         if len(known) != f:
             raise SfmnetError(f"loads has {len(known)} rows but readings has {f}: give one load row (NaN if unknown) per reading")
+        if np.isnan(known).all():
+            raise SfmnetError(
+                "loads is NaN on every row, so no known load fixes the frame: give the known loads on their rows, or "
+                "loads=None and axes=[...] for a calibration in an arbitrary frame"
+            )
         n = known.shape[1]
     channels = list(channels) if channels is not None else [f"z{i}" for i in range(p)]
     axes = list(axes) if axes is not None else default_axis_names(n)

@@ -367,6 +367,12 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "non-numeric cell": (lambda t: calibrate(t, edit=set_cell(5, 2, "n/a")), r"channel column 's1' of .* is not numeric"),
     "NaN value": (lambda t: calibrate(t, edit=set_cell(7, 3, "nan")), r"1 empty, NaN or infinite reading values \(first: line 7 column s2\)"),
     "infinite value": (lambda t: calibrate(t, edit=set_cell(9, 1, "-inf")), r"1 empty, NaN or infinite reading values \(first: line 9 column s0\)"),
+    # A hostile tester's: calibrated in an arbitrary frame labelled fx, fy, fz (175 % off, trusted, no warning).
+    "load columns named, empty on every row": (
+        lambda t: calibrate(t, known_loads=0),
+        r"the load columns fx, fy, fz are empty on every row of .*session.csv, so no known load fixes the frame: .*"
+        r"set data.load_columns=\[\]",
+    ),
     "no known loads, their empty columns left in": (
         lambda t: calibrate(t, "data.load_columns=[]", "data.axes=[x,y,z]", known_loads=0),
         r"columns fx, fy, fz of .*session.csv are empty on every row, so not a channel: list the channels with data.channel_columns",
@@ -496,6 +502,9 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: stream(t, edit=blank_last_load), r"line \d+ of .*session.csv gives only some of fx, fy, fz: fill every load column"
     ),
     "stream: NaN value": (lambda t: stream(t, edit=set_cell(7, 3, "nan")), r"line 7 of .*session.csv has a NaN, empty or infinite channel cell, or one beyond 1e\+15 \(s2\)"),
+    "stream: load columns named, empty on every row": (
+        lambda t: stream(t, known_loads=0), r"the load columns fx, fy, fz are empty on every row of the file, so no known load"
+    ),
     "stream: no known loads, their empty columns left in": (
         lambda t: stream(t, "data.load_columns=[]", "data.axes=[x,y,z]", known_loads=0),
         r"columns fx, fy, fz of .*session.csv are empty on each of the first \d+ rows, so not a channel",

@@ -86,6 +86,7 @@ def test_config_overrides_reach_the_fit(tmp_path: Path):
         ({"readings": np.ones((4, 6)) + 1j}, r"readings is complex: give real raw readings"),
         ({"time": ["noon"] * 99}, r"time is not a numeric array"),
         ({"loads": np.full((7, 3), np.nan)}, r"loads has 7 rows but readings has 99"),
+        ({"loads": np.full((99, 3), np.nan)}, r"loads is NaN on every row, so no known load fixes the frame: .*loads=None"),
         ({"time": np.arange(3.0)}, r"time has shape \(3,\) but readings has 99 rows"),
         ({"channels": ["a"] * 6}, r"give 6 distinct channel names"),
         ({"model.no_such_key": 1}, r"model.no_such_key is not a config key"),

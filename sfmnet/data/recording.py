@@ -174,6 +174,15 @@ class CalibrationData:
         return replace(self, recordings=recordings, evaluations=[], test=None)
 
 
+def empty_load_columns(load_columns: list[str], path: str) -> str:
+    """The message for load columns named but empty on every row: the frame would be arbitrary, labelled as theirs."""
+    return (
+        f"the load columns {', '.join(load_columns)} are empty on every row of {path}, so no known load fixes the frame: "
+        "fill them on the known-load rows or, with no known load (the frame arbitrary), set data.load_columns=[] and "
+        "name the axes with data.axes=[...]"
+    )
+
+
 def first_magnitude_mismatch(forces: np.ndarray, magnitudes: np.ndarray, tolerance: float) -> int | None:
     """The first of the known ``forces`` (``k x 3``) whose norm is off its ``magnitudes`` (``k``) by more than ``tolerance``."""
     off = np.abs(np.linalg.norm(forces, axis=1) / magnitudes - 1) > tolerance

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from sfmnet.data.recording import CalibrationRecording, first_magnitude_mismatch
+from sfmnet.data.recording import CalibrationRecording, empty_load_columns, first_magnitude_mismatch
 from sfmnet.data.rows import IntervalSums, RowBlock, StreamedRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.anderson import AndersonAcceleration
@@ -394,6 +394,8 @@ class StreamedShapeFromMotion(LinearCalibrator):
         self.reading_scale = (moments.centred_cross().trace() / moments.count).sqrt()
 
     def check_known_magnitudes(self) -> None:
+        if self.data.load_columns and not len(self.known):
+            raise SfmnetError(empty_load_columns(self.data.load_columns, "the file"))
         forces = self.known_loads()
         magnitudes = np.full(len(forces), self.data.magnitude)
         off = first_magnitude_mismatch(forces.numpy(), magnitudes, self.data.known_load_tolerance)

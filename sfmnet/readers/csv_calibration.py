@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
-from sfmnet.data.recording import CalibrationData, CalibrationRecording, first_magnitude_mismatch
+from sfmnet.data.recording import CalibrationData, CalibrationRecording, empty_load_columns, first_magnitude_mismatch
 from sfmnet.preprocessing.revisited_poses import RevisitedPoses, hold_ids, holds_per_pose, revisited_poses
 from sfmnet.preprocessing.static_intervals import StaticIntervals
 from sfmnet.readers.static_rows import fitted_rows, static_settings
@@ -143,6 +143,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 f"{self.path} {table.row_place(int(np.argmax(partial)))} gives only some of {', '.join(self.load_columns)}: "
                 "fill every load column on a known row, or none"
             )
+        if self.load_columns and np.isnan(loads).all():
+            raise SfmnetError(empty_load_columns(self.load_columns, str(self.path)))
         groups, labels, time = None, None, None
         if self.group_column:
             labels = table.numeric([self.group_column], "group")[:, 0]
