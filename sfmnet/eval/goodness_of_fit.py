@@ -650,10 +650,17 @@ def goodness_of_fit(
     )
     # The chi-square tail itself puts ~1e-4 of good rows beyond the limit.
     if count > OUTLIER_ALLOWANCE + 10 * 1e-4 * len(residuals) and not robust:
+        # Rows already grouped into static intervals or poses: motion the detector let in, not a missing time column.
+        static = (
+            "tighten the static intervals (a lower data.static.threshold, a longer data.static.min_duration) if a time "
+            "column found them"
+            if groups is not None and not poses_found
+            else "fit only the static intervals (a time column)"
+        )
         warnings.append(
             f"{count} of {len(residuals)} rows ({100 * count / len(residuals):.1f} %) are far off the model "
             "(motion, bumps, a slipped mass, a misapplied known load, a nonlinear sensor): remove them (outlier_rows "
-            "in calibration.json), fit only the static intervals (a time column), or set model.robust=huber"
+            f"in calibration.json), {static}, or set model.robust=huber"
         )
     elif fit_noise > MAX_NOISE_SPREAD * robust_noise and not robust:
         warnings.append(
