@@ -12,8 +12,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
+from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.training.run import train
 from tests.conftest import REPO, SMALL_SPHERE_GRID, compose_config, write_session
 from tests.test_gross_outliers import held_poses
@@ -86,12 +88,20 @@ def test_eigenspace_learner_killed_mid_fit_resumes_bit_for_bit(tmp_path: Path):
             assert np.array_equal(first[name], second[name]), name
 
 
-def test_streamed_fit_killed_between_passes_resumes_bit_for_bit(tmp_path: Path):
+@pytest.mark.parametrize("continuous", [False, True])
+def test_streamed_fit_killed_between_passes_resumes_bit_for_bit(tmp_path: Path, continuous: bool):
+    """Independent poses (each row its own direction), and a continuous recording whose static intervals' rows share
+    one (their directions taken again, at the resumed pass's start, from the checkpoint's interval sums)."""
     session = tmp_path / "session.csv"
-    write_session(session, known_loads=2)
+    if continuous:
+        generator = torch.Generator().manual_seed(3)
+        recording = simulate_stream(stream_sensor(8, 9.81, 0.01, 0.2, generator), 1.0, poses=12, rate=50.0, generator=generator)
+        write_stream_csv(recording, session)
+    else:
+        write_session(session, known_loads=2)
     run = [
         "experiment=calibrate_stream", f"data.path={session}", "data.magnitude=9.81", "data.time_column=time",
-        "data.mirror_hint={row: 0, axis: fz, sign: 1}", "data.block_rows=50",
+        *([] if continuous else ["data.mirror_hint={row: 0, axis: fz, sign: 1}"]), "data.block_rows=50",
     ]
     # Killed after the moments, the metric constraint and two alternation rounds: the resumed fit keeps them.
     says = killed_then_resumed(tmp_path, run, "streamed_shape_from_motion", epoch=4).stdout
@@ -100,6 +110,7 @@ def test_streamed_fit_killed_between_passes_resumes_bit_for_bit(tmp_path: Path):
     whole = uninterrupted(tmp_path, run)
     assert_same_calibration(resumed, whole)
     assert json.loads((resumed / "metrics.json").read_text())["epochs"] == json.loads((whole / "metrics.json").read_text())["epochs"]
+    assert json.loads((whole / "calibration.json").read_text())["tied_directions"] is continuous
 
 
 def test_ctrl_c_names_the_checkpoint_to_resume_from(tmp_path: Path):

@@ -78,18 +78,27 @@ def test_an_unconverged_alternation_says_so(session: Path, tmp_path: Path):
     assert any("had not converged after 3 passes" in warning for warning in calibration["warnings"])
 
 
-def test_two_processes_give_the_same_calibration(session: Path, tmp_path: Path):
-    """DDP on the CPU (gloo): blocks dealt to two real processes, known rows gathered by a sum."""
-    single, _ = calibrate(session, tmp_path / "single", "calibrate_stream", "data.block_rows=40")
+@pytest.mark.parametrize("continuous", [False, True])
+def test_two_processes_give_the_same_calibration(session: Path, tmp_path: Path, continuous: bool):
+    """DDP on the CPU (gloo): blocks dealt to two real processes, known rows gathered by a sum. A continuous recording
+    (12 poses held 2 s, moves between them) ties each static interval's rows to one direction: the intervals' sums
+    are reduced before any interval's direction is taken from them."""
+    if continuous:
+        generator = torch.Generator().manual_seed(3)
+        recording = simulate_stream(stream_sensor(8, 9.81, 0.01, 0.2, generator), 1.0, poses=12, rate=50.0, generator=generator)
+        session = tmp_path / "stream.csv"
+        write_stream_csv(recording, session)
+    hint = [] if continuous else ["data.mirror_hint={row: 0, axis: fz, sign: 1}"]
+    single, _ = calibrate(session, tmp_path / "single", "calibrate_stream", "data.block_rows=40", *(["data.mirror_hint=null"] if continuous else []))
     command = [
-        sys.executable, "-m", "sfmnet", "train", "experiment=calibrate_stream", f"data.path={session}",
-        "data.mirror_hint={row: 0, axis: fz, sign: 1}", f"hydra.run.dir={tmp_path / 'ddp'}", "trainer.devices=2",
-        "trainer.strategy=ddp", "data.block_rows=40", *SESSION,
+        sys.executable, "-m", "sfmnet", "train", "experiment=calibrate_stream", f"data.path={session}", *hint,
+        f"hydra.run.dir={tmp_path / 'ddp'}", "trainer.devices=2", "trainer.strategy=ddp", "data.block_rows=40", *SESSION,
     ]
     done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300, check=False, env={**os.environ})
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.count("run directory:") == 1
     double = json.loads((tmp_path / "ddp" / "calibration.json").read_text())
+    assert single["tied_directions"] is continuous and double["tied_directions"] is continuous
     for key in ("matrix", "offset", "matrix_std", "singular_values"):
         assert relative(double[key], single[key]) <= 1e-10, key
 
