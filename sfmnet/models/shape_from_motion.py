@@ -22,7 +22,7 @@ from sfmnet.linalg.factorisation import (
 )
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
 from sfmnet.linalg.uncertainty import residual_noise_variance
-from sfmnet.linalg.group_means import group_means
+from sfmnet.linalg.group_means import group_means, harmonic_mean_rows
 from sfmnet.linalg.least_squares import least_squares_shape
 from sfmnet.linalg.orientation_law import LAW_DEGREES, fit_orientation_law, harmonic_basis, held_out_log_likelihood
 from sfmnet.linalg.motion import constrained_motion, unit_motion
@@ -416,10 +416,7 @@ class ShapeFromMotion(LinearCalibrator):
         self.row_pose, self.rows_per_direction = poses, 1.0
         if poses is not None and bool(unknown.any()):
             self.require_poses(recording, len(poses[unknown].unique()))
-            # The harmonic mean of the poses' rows: one pose of thousands among many of three leaves most directions
-            # resting on three rows (the plain mean would call them sharp).
-            counts = torch.unique(poses[unknown], return_counts=True)[1].to(torch.float64)
-            self.rows_per_direction = float(len(counts) / (1 / counts).sum())
+            self.rows_per_direction = harmonic_mean_rows(torch.unique(poses[unknown], return_counts=True)[1])
 
     def require_poses(self, recording: CalibrationRecording, poses: int) -> None:
         """Tied, the unknown rows give one equation ``|m| = F`` per pose and a distinct known load ``n``: fewer than

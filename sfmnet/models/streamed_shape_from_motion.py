@@ -24,6 +24,7 @@ from sfmnet.linalg.factorisation import (
     require_coverage,
 )
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
+from sfmnet.linalg.group_means import harmonic_mean_rows
 from sfmnet.linalg.motion import unit_motion
 from sfmnet.linalg.moments import (
     Moments,
@@ -612,32 +613,26 @@ class StreamedShapeFromMotion(LinearCalibrator):
         """Rows streamed (motion left out) whose load is unknown."""
         return self.rows_read - len(self.known)
 
-    def unknown_rows_per_interval(self) -> torch.Tensor:
-        """Each static interval's rows of unknown load (every row streamed, not the sample's), ``k``."""
+    def tied_direction_rows(self) -> torch.Tensor:
+        """Tied, the unknown rows (every row streamed, not the sample's) behind each direction the fit solved for: a
+        static interval's that holds any, then one for each unknown row outside every interval."""
         known = self.interval_of(self.known[:, 0].long())
         known_rows = torch.bincount(known[known >= 0], minlength=self.intervals).to(self.interval_readings.dtype)
-        return self.interval_readings[:, 0] - known_rows
+        per_interval = self.interval_readings[:, 0] - known_rows
+        outside = max(self.unknown_rows_streamed - int(per_interval.sum()), 0)
+        return torch.cat([per_interval[per_interval > 0], per_interval.new_ones(outside)])
 
     @property
     def free_directions(self) -> float:
         """The directions the fit solved for: one per unknown row, or tied, one per static interval holding unknown
         rows and one per unknown row outside them."""
-        if not self.tied_fit:
-            return float(self.unknown_rows_streamed)
-        per_interval = self.unknown_rows_per_interval()
-        return float((per_interval > 0).sum()) + self.unknown_rows_streamed - float(per_interval.sum())
+        return float(len(self.tied_direction_rows())) if self.tied_fit else float(self.unknown_rows_streamed)
 
     @property
     def rows_per_direction(self) -> float:
-        """Unknown rows per fitted direction, the harmonic mean over them (a pose's mean reading has ``sqrt`` of it
-        times a row's SNR; one long pose among many short ones does not make the short ones sharp); 1 untied."""
-        if not self.tied_fit:
-            return 1.0
-        per_interval = self.unknown_rows_per_interval()
-        counts = per_interval[per_interval > 0]
-        outside = self.unknown_rows_streamed - float(per_interval.sum())
-        directions = len(counts) + outside
-        return directions / (float((1 / counts).sum()) + outside) if directions > 0 else 1.0
+        """Unknown rows per fitted direction (:func:`~sfmnet.linalg.group_means.harmonic_mean_rows`); 1 untied."""
+        rows = self.tied_direction_rows() if self.tied_fit else None
+        return harmonic_mean_rows(rows) if rows is not None and len(rows) else 1.0
 
     def unknown_row_weight(self, recording: CalibrationRecording) -> float:
         """The sample's unknown rows (:meth:`report_recording`) stand for every unknown row streamed."""
