@@ -386,6 +386,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "channel named twice": (lambda t: calibrate(t, "data.channel_columns=[s0,s0,s1,s2,s3]"), r"column 's0' is named as a channel column twice: give each column one role, once"),
     "time column named as a channel": (lambda t: calibrate(t, "data.channel_columns=[time,s0,s1,s2,s3,s4,s5]"), r"column 'time' is named as both a channel and a time column"),
     "missing column": (lambda t: calibrate(t, "data.load_columns=[fx,fy,fzz]"), r"load column 'fzz' is not in .* \(did you mean 'fz'\?\)"),
+    "four load columns": (lambda t: calibrate(t, "data.load_columns=[fx,fy,fz,s5]"), r"4 load axes \(fx, fy, fz, s5\): a calibration has 2"),
     "fewer channels than loads": (lambda t: calibrate(t, "data.channel_columns=[s0,s1]"), r"2 channel columns for 3 load axes"),
     "fewer samples than unknowns": (lambda t: calibrate(t, edit=keep_rows(5)), r"only 8 samples for 9 unknowns of the metric constraint with offsets"),
     "collinear motion": (lambda t: calibrate(t, edit=project_unknown_loads(1)), r"collinear"),

@@ -87,6 +87,8 @@ def test_config_overrides_reach_the_fit(tmp_path: Path):
         ({"time": ["noon"] * 99}, r"time is not a numeric array"),
         ({"loads": np.full((7, 3), np.nan)}, r"loads has 7 rows but readings has 99"),
         ({"loads": np.full((99, 3), np.nan)}, r"loads is NaN on every row, so no known load fixes the frame: .*loads=None"),
+        # A hostile tester's: refused for the fourth column's magnitude ("12.39 but data.magnitude is 9.81").
+        ({"loads": np.vstack([np.full((1, 4), 4.905), np.full((98, 4), np.nan)])}, r"4 load axes \(l0, l1, l2, l3\): a calibration has 2 \(a fingertip\), 3 .* or 6"),
         ({"time": np.arange(3.0)}, r"time has shape \(3,\) but readings has 99 rows"),
         ({"channels": ["a"] * 6}, r"give 6 distinct channel names"),
         ({"model.no_such_key": 1}, r"model.no_such_key is not a config key"),

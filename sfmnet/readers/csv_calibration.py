@@ -311,6 +311,10 @@ def pose_labels(values: np.ndarray, detection: StaticIntervals | None = None) ->
     return np.unique(codes, return_inverse=True)[1].reshape(-1)
 
 
+# The loads a constant-magnitude calibration can have: a plane's, space's, or a wrench's (force and torque).
+LOAD_AXES = (2, 3, 6)
+
+
 def load_axes(load_columns: list[str], axes: list[str] | None) -> list[str]:
     """The ``n`` load axis names: the load columns, or ``axes`` when no load is known."""
     if load_columns and axes and list(axes) != list(load_columns):
@@ -320,6 +324,11 @@ def load_axes(load_columns: list[str], axes: list[str] | None) -> list[str]:
         raise SfmnetError(
             "no load axes: give the known loads' columns (data.load_columns=[fx,fy,fz]) or, with no known load, "
             "name the axes (data.load_columns=[] data.axes=[x,y,z])"
+        )
+    if len(names) not in LOAD_AXES:
+        raise SfmnetError(
+            f"{len(names)} load ax{'is' if len(names) == 1 else 'es'} ({', '.join(map(str, names))}): a calibration has 2 (a fingertip), 3 (a force "
+            "sensor, an accelerometer or a magnetometer) or 6 (force and torque), one load column or axis name each"
         )
     return names
 
