@@ -385,6 +385,12 @@ def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Ten
     return outliers, math.sqrt(max(variance, 0.0))
 
 
+def known_load_poses(known: torch.Tensor, groups: torch.Tensor | None) -> torch.Tensor:
+    """``k`` (long): the pose of each known-load row, ``groups`` where given, else the rows given one load together
+    (one load is one pose: judged row by row, a pose's shared error would be diluted by sqrt(rows))."""
+    return torch.unique(known, dim=0, return_inverse=True)[1] if groups is None else groups
+
+
 def known_load_misfit(
     calibrated: torch.Tensor, known: torch.Tensor, matrix: torch.Tensor, noise: float, groups: torch.Tensor | None
 ) -> tuple[float, float]:
@@ -403,10 +409,7 @@ def known_load_misfit(
     """
     error = calibrated - known
     rms = float(error.pow(2).mean().sqrt())
-    if groups is None:
-        # Rows given one load were held in one pose: a per-row ratio dilutes their shared error by sqrt(rows).
-        groups = torch.unique(known, dim=0, return_inverse=True)[1]
-    means, _, counts = group_means(error, groups)
+    means, _, counts = group_means(error, known_load_poses(known, groups))
     if not noise > 0:
         return rms, math.inf
     whitened = torch.linalg.solve_triangular(torch.linalg.cholesky(matrix @ matrix.T), means.T, upper=False)
@@ -430,7 +433,7 @@ def mirror_z(
         calibrated: ``k x n``, ``C (z_k - o)`` of the known rows; known: ``k x n`` their loads.
         matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (rows given one load together).
     """
-    labels = torch.unique(known, dim=0, return_inverse=True)[1] if groups is None else groups
+    labels = known_load_poses(known, groups)
     means, _, counts = group_means(calibrated, labels)
     loads, _, _ = group_means(known, labels)
     smallest = float(torch.linalg.svdvals((counts[:, None] * means).T @ loads)[-1])
