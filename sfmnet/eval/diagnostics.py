@@ -111,6 +111,8 @@ def calibration_diagnostics(
         global_parameters(model, recording, direction_dims) * share,
         pose_sums,
         poses_found=found,
+        alternation_bias=model.alternation_bias(),
+        serial_design=torch.cat([loads, torch.ones(len(loads), 1, dtype=loads.dtype)], dim=1) if model.estimate_offset else loads,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness

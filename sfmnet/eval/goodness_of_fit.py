@@ -60,6 +60,16 @@ MAX_POSE_MISFIT_RATIO = 2.0
 # (those streams at p = 3, 6 and 8, with and without known loads, and tests/test_goodness_and_triads.py's
 # nonlinear_poses) z had mean 0.0-0.2 and standard deviation 1.0-1.3 and never passed 2.4.
 POSE_MISFIT_Z = 3.0
+# Without poses, the residuals of consecutive rows are averaged in batches of these sizes (rows) and the batch means'
+# chi-square is judged as the poses' is (:func:`serial_misfit`). A recording swept continuously (no holds) turns the mass
+# slowly, so a misfit that depends on the orientation (a sensor not quite linear, hysteresis) or on time (drift) is shared
+# by neighbouring rows and grows in their means, while independent noise shrinks. Several sizes, because how many rows
+# share a misfit depends on how fast the mass turns.
+SERIAL_BATCH_ROWS = (4, 16, 64, 256)
+# ... each taken only where it gives this many batches.
+MIN_SERIAL_BATCHES = 16
+# The largest batch size's z may reach this (the largest of four correlated standard normals: p ~ 1e-3 each).
+SERIAL_MISFIT_Z = 4.0
 # Holds of a pose held more than once may differ by this many standard deviations of what noise allows (p ~ 1e-3): on 100
 # simulated sets of 14 holds of 50 rows (2 poses revisited) under white noise z had mean -0.2, standard deviation 0.84 and
 # never passed 1.7; with AR(1) noise of lag-one correlation 0.8 over 200-row holds and 0.95 over 500-row ones, mean
@@ -93,6 +103,13 @@ MAX_RELATIVE_MATRIX_STD = 0.15
 # over bars 0.96-1.05) but 0.54-0.56 from 0.10 to 0.15 (1.21-1.30, up to 2.7x), where sessions that learnt the uniform
 # law covered 0.66 (0.98); the two sessions between 0.07 and 0.10 lay either side (0.72x and 1.20x).
 MAX_RELATIVE_MATRIX_STD_LEARNT_LAW = 0.08
+# The alternation's first-order bias (:func:`~sfmnet.linalg.uncertainty.alternation_bias`, a fraction of the matrix) may
+# reach this many times the bars' (|matrix_std|_F / |C|_F) before they are said not to cover the error. The bias does
+# not shrink with the rows; the bars do. On 3-channel sensors of condition 3-48 at 1 % noise (mean SNR 120-170, the weak
+# axis's 6-130), 3,000 and 20,000 uniform rows, the 8 sessions whose bias was under the bars were 0.66-1.49x their bars,
+# the 8 over them 1.10-6.5x (the bias predicted within 2x low); on one with a single axis 50x weaker, 2.7x where 5.4x
+# was predicted (tests/test_goodness_and_triads.py).
+MAX_BIAS_BARS_RATIO = 1.0
 # The marginal fit and the alternation fitted beside it (from direction SNR 10, where the alternation's bias is within
 # its bars) may differ by this many of the fit's error bars (|matrix_std|_F) before one of them is said to be wrong:
 # past 2, at least one is more than its bars from the truth. Two right estimators on the same rows differ by far less:
@@ -256,6 +273,64 @@ def pose_misfit_z(poses: PoseMeans, noise: float, parameters: float) -> float:
     if not noise > 0:
         return math.nan
     return chi_square_z(float(poses.squares.sum()) / noise**2, float(poses.dof.sum()) - parameters)
+
+
+class SerialMisfit(NamedTuple):
+    """The worst batch size's figures (:func:`serial_misfit`): its rows, :func:`pose_misfit_ratio` and :func:`pose_misfit_z`."""
+
+    batch_rows: int
+    ratio: float
+    z: float
+
+
+def batch_share(design: torch.Tensor, rows: int) -> float:
+    """The share of the global parameters that means over ``rows`` consecutive rows see: ``tr((X^T X)^-1 Xbar^T Xbar) / q``
+    (method §5, eq. N2).
+
+    A parameter enters row ``j`` through ``x_j`` (its load, and 1 for an offset); batch means keep its whole effect where
+    ``x`` is constant over a batch (an offset, or a shape seen through loads that turn slowly) and ``1 / rows`` of it
+    where ``x`` is independent from row to row (loads in random order), so the fit takes that share of the batches'
+    degrees of freedom.
+
+    Args:
+        design: ``f x q``, ``X`` (``f`` a multiple of ``rows``); rows: the batch size.
+    """
+    means = design.reshape(-1, rows, design.shape[1]).mean(dim=1)
+    kept = rows * means.T @ means
+    return float(torch.linalg.solve(design.T @ design, kept).diagonal().sum()) / design.shape[1]
+
+
+def serial_misfit(
+    residuals: torch.Tensor, dof: torch.Tensor, noise: float, parameters: float, design: torch.Tensor
+) -> SerialMisfit | None:
+    """How far means over consecutive rows miss the model, beyond what independent noise explains (method §5, "Rows
+    swept without holds").
+
+    The rows (in recording order) are cut into batches of ``b`` consecutive rows for each ``b`` in
+    :data:`SERIAL_BATCH_ROWS` and each batch is judged as a pose is (:func:`pose_misfit_z`): for white noise and a
+    model that fits, ``sum_B b |rbar_B|^2 / sigma^2 ~ chi2(sum_B k_B - parameters * share)``, ``share`` the part of the
+    global parameters the batch means see (:func:`batch_share`); each row's own direction leaves its residual
+    independent of its neighbours'. A misfit neighbouring rows share (drift in time; nonlinearity or hysteresis read as
+    the mass turns slowly) adds ``b |bias|^2`` per batch, the noise only its variance. Returns the batch size of largest
+    z, or None where no size gives :data:`MIN_SERIAL_BATCHES` batches.
+
+    Args:
+        residuals: ``f x p`` in recording order (raw units); dof: ``f`` (long), each row's residual degrees of freedom;
+        noise: ``sigma`` (raw units); parameters: the global parameters fitted to the rows (:func:`pose_misfit_z`);
+        design: ``f x q``, each row's fitted load and, with offsets, a 1 (:func:`batch_share`).
+    """
+    worst: SerialMisfit | None = None
+    for rows in SERIAL_BATCH_ROWS:
+        batches = len(residuals) // rows
+        if batches < MIN_SERIAL_BATCHES:
+            break
+        used = batches * rows
+        means = pose_means(residuals[:used], torch.arange(used) // rows, dof[:used])
+        fitted = parameters * batch_share(design[:used], rows)
+        found = SerialMisfit(rows, pose_misfit_ratio(means, noise), pose_misfit_z(means, noise, fitted))
+        if math.isfinite(found.z) and (worst is None or found.z > worst.z):
+            worst = found
+    return worst
 
 
 def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int) -> str | None:
@@ -462,6 +537,8 @@ def goodness_of_fit(
     parameters: float = 0,
     pose_sums: IntervalSums | None = None,
     poses_found: bool = False,
+    alternation_bias: float | None = None,
+    serial_design: torch.Tensor | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -497,6 +574,11 @@ def goodness_of_fit(
         pose_sums: a stream's sums over every row of each static interval (with ``groups``), where ``readings`` and
             ``residuals`` are only a sample of them (:func:`summed_pose_statistics`); None: the pose checks use
             ``readings``, ``residuals`` and ``groups``.
+        alternation_bias: the fit's own bias to first order, a fraction of the matrix
+            (:meth:`~sfmnet.models.linear_calibrator.LinearCalibrator.alternation_bias`): past
+            :data:`MAX_BIAS_BARS_RATIO` times the relative bars (``matrix_std``), they do not cover the error.
+        serial_design: ``f x q``, each row's fitted load and, with offsets, a 1: without groups, the rows in recording
+            order are judged in batches (:func:`serial_misfit`); None: not judged.
         poses_found: ``groups`` are poses found in the readings
             (:func:`~sfmnet.eval.diagnostics.held_pose_groups`), not given by a time or pose column.
 
@@ -512,8 +594,11 @@ def goodness_of_fit(
         (the largest RMS load change, a fraction of ``F``, among calibrations along the valley as likely
         as the fit), ``goodness/valley_bars_ratio`` (that change over the RMS load error the bars
         predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``),
+        ``goodness/serial_misfit_ratio``, ``goodness/serial_misfit_z`` and ``goodness/serial_batch_rows``
+        (:func:`serial_misfit`, the unknown rows in recording order, outliers left out) (without groups),
         ``goodness/pose_equations`` and, where fewer poses were found than counted up to,
-        ``goodness/pose_scatter_ratio`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``).
+        ``goodness/pose_scatter_ratio`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``), ``goodness/alternation_bias`` and
+        ``goodness/bias_bars_ratio`` (with ``alternation_bias`` and ``matrix_std``).
     """
     p = residuals.shape[1]
     metrics: dict[str, float] = {}
@@ -557,6 +642,24 @@ def goodness_of_fit(
                     f"more than chance allows over {len(means.dof)} poses (z = {z:.1f}): a sensor not quite linear, hysteresis, "
                     "a load that differs between poses or drift; such a bias does not shrink with the rows as the "
                     "error bars do, so they may be several times too small"
+                )
+    if groups is None and serial_design is not None:
+        # Outlying rows have their own check; here they would read as a misfit their batch shares.
+        kept = ~known & ~outliers
+        serial = serial_misfit(residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept])
+        if serial is not None:
+            metrics.update(
+                {"goodness/serial_misfit_ratio": serial.ratio, "goodness/serial_misfit_z": serial.z,
+                 "goodness/serial_batch_rows": float(serial.batch_rows)}
+            )
+            if serial.z > SERIAL_MISFIT_Z:
+                warnings.append(
+                    f"neighbouring rows miss the model together: means over {serial.batch_rows} consecutive rows miss it by "
+                    f"{serial.ratio:.2f}x what independent noise explains, more than chance allows (z = {serial.z:.1f}): the "
+                    "sensor drifted, is not quite linear or has hysteresis (read as the mass turns), or its noise is "
+                    "correlated in time; none shrinks with the rows as the error bars do, so they are too small and the "
+                    "first three bias the calibration: hold the mass still at each pose and give a time column (the pose "
+                    "checks then tell which), and let the sensor warm up"
                 )
     if constraint is not None:
         ratio = constraint_noise_ratio(constraint[0], constraint[1], matrix, constraint[2])
@@ -637,6 +740,18 @@ def goodness_of_fit(
                 f"Cramer-Rao bound), which holds only for errors small against the calibration{cost}; past "
                 f"{100 * limit:.0f} % the error was measured up to {measured:g}x the bars; record more "
                 "rows or poses, or load the sensor more heavily, to bring it down"
+            )
+    if alternation_bias is not None and matrix_std is not None:
+        bars = relative_matrix_std(matrix_std, matrix)
+        ratio = alternation_bias / bars if bars > 0 else math.inf
+        metrics.update({"goodness/alternation_bias": alternation_bias, "goodness/bias_bars_ratio": ratio})
+        if ratio > MAX_BIAS_BARS_RATIO:
+            warnings.append(
+                f"the alternation's bias, about {100 * alternation_bias:.2g} % of the matrix, is {ratio:.1f}x its error bars "
+                f"({100 * bars:.2g} %): fitting each row's direction on its own shrinks the calibration by about half "
+                "the noise across the direction, set by the sensor's weakest axis, and more rows shrink the bars but "
+                "not the bias; hold the mass still at each pose and give a time column (a pose's mean then has one "
+                "direction, sqrt(rows) times sharper), load the sensor more heavily, or set model.refinement=marginal"
             )
     if refinement_disagreement is not None:
         metrics["goodness/refinement_disagreement"] = refinement_disagreement

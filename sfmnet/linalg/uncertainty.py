@@ -222,6 +222,28 @@ def frame_turns(matrix: torch.Tensor) -> torch.Tensor:
     return basis.T
 
 
+def alternation_bias(shape: torch.Tensor, snr: float) -> float:
+    """The alternation's bias (untied directions fitted row by row), to first order, as a fraction of the matrix.
+
+    A row's noise reaches its load as ``C e`` (covariance ``sigma^2 C C^T``); the part across the row's direction is
+    taken up by the fitted direction and adds to ``|m|^2`` on average, so the fit shrinks the calibration by about half
+    the transverse variance over ``F^2`` (method §5, eq. B1): averaged over the sphere,
+    ``(d - 1) / (2 d) sum_i 1 / SNR_i^2`` with ``SNR_i = F sigma_i(S) / noise`` along each of the shape's singular
+    directions. On a well-conditioned sensor that is the familiar ``(d - 1) / (2 SNR^2)``; on an ill-conditioned one
+    the weak axis sets it, whatever the mean SNR (``F |s| / noise``). First order and averaged over the sphere, it is a
+    guide within about 3x: on 3-channel sensors with random shapes (20,000 rows) the matrix error was up to 2x it, on
+    one with a single weak axis (tests/test_goodness_and_triads.py) half of it.
+
+    Args:
+        shape: ``S``, ``n x p`` (raw units per load unit); snr: ``F |s| / noise`` with ``|s|`` the mean of the
+            channels' ``|s_k|`` (:attr:`~sfmnet.models.shape_from_motion.ShapeFromMotion.direction_snr`).
+    """
+    singular = torch.linalg.svdvals(shape)
+    per_axis = snr * singular / shape.norm(dim=0).mean()
+    d = shape.shape[0]
+    return float((d - 1) / (2 * d) * per_axis.pow(-2).sum())
+
+
 def relative_matrix_std(matrix_std: torch.Tensor, matrix: torch.Tensor) -> float:
     """The calibration matrix's standard error relative to the matrix: ``|matrix_std|_F / |C|_F`` (both ``n x p``)."""
     return float(matrix_std.norm() / matrix.norm())

@@ -90,6 +90,11 @@ class LinearCalibrator(nn.Module, ABC):
         """Whether the error bars rest on a law of directions learnt from the rows (not assumed uniform); False here."""
         return False
 
+    def alternation_bias(self) -> float | None:
+        """The fit's own bias to first order, a fraction of the calibration matrix, where it is known to have one
+        (:func:`~sfmnet.linalg.uncertainty.alternation_bias`); None here."""
+        return None
+
     def alternation_beside(self, recording: CalibrationRecording) -> LinearCalibrator | None:
         """A second estimator fitted to the same rows, for the diagnostics to compare with this fit; None here."""
         return None

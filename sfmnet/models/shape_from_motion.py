@@ -21,7 +21,7 @@ from sfmnet.linalg.factorisation import (
     require_coverage,
 )
 from sfmnet.linalg.frame import frame_rotation, known_load_rotation
-from sfmnet.linalg.uncertainty import residual_noise_variance
+from sfmnet.linalg.uncertainty import alternation_bias, residual_noise_variance
 from sfmnet.linalg.group_means import group_means, harmonic_mean_rows
 from sfmnet.linalg.least_squares import least_squares_shape
 from sfmnet.linalg.orientation_law import LAW_DEGREES, fit_orientation_law, harmonic_basis, held_out_log_likelihood
@@ -304,6 +304,13 @@ class ShapeFromMotion(LinearCalibrator):
     def learnt_orientation_law(self) -> bool:
         """The marginal learnt a law other than the uniform one for some mass configuration (:attr:`law_learnt`)."""
         return self.refinement == "marginal" and any(law != "uniform" for law in self.law_learnt)
+
+    def alternation_bias(self) -> float | None:
+        """:func:`~sfmnet.linalg.uncertainty.alternation_bias` at :attr:`direction_snr`, where the alternation fitted one
+        constant-magnitude mass; None elsewhere (the marginal integrates the directions out)."""
+        if self.refinement != "alternation" or not self.constrained or len(self.direction_maps) > 1:
+            return None
+        return alternation_bias(self.physical_shape(), self.direction_snr)
 
     def alternation_beside(self, recording: CalibrationRecording) -> ShapeFromMotion | None:
         """The alternation fitted to the same rows with the same options, beside a marginal fit at a direction SNR where

@@ -32,7 +32,7 @@ from sfmnet.linalg.moments import (
     principal_subspace,
     singular_values_from_scatter,
 )
-from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty, residual_noise_variance
+from sfmnet.linalg.uncertainty import CalibrationUncertainty, alternation_bias, calibration_uncertainty, residual_noise_variance
 from sfmnet.models.contracts import FitMode
 from sfmnet.models.linear_calibrator import LinearCalibrator, UnknownRows
 from sfmnet.models.shape_from_motion import (
@@ -524,6 +524,13 @@ class StreamedShapeFromMotion(LinearCalibrator):
         if snr < ALTERNATION_BIASED_BELOW_SNR:
             return [low_snr_warning(snr, remedy)]
         return []
+
+    def alternation_bias(self) -> float | None:
+        """:func:`~sfmnet.linalg.uncertainty.alternation_bias` at a direction's SNR (a pose mean's where tied), once the
+        alternation has run; None for the closed form."""
+        if self.refinement == "closed_form" or self.passes <= 2:
+            return None
+        return alternation_bias(self.physical_shape(), self.signal_to_noise() * math.sqrt(self.rows_per_direction))
 
     def closed_form_signal_to_noise(self) -> float:
         """``F |s| / noise`` after the closed form alone, the noise from the readings' scatter off the load space.
