@@ -519,8 +519,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         if growth > (RUNAWAY_GROWTH if self.converged else GROWTH_WHILE_UNCONVERGED):
             remedy = "more passes will not help; calibrate in memory with experiment=calibrate_csv (its auto refinement "
             return [runaway_warning(growth, remedy + "takes the marginal likelihood at low SNR) or keep model.refinement=closed_form")]
-        # Tied, the bias goes by a pose mean's SNR, sqrt(rows per direction) times a row's (method §5).
-        snr = self.signal_to_noise() * math.sqrt(self.rows_per_direction)
+        snr = self.direction_snr()
         if snr < ALTERNATION_BIASED_BELOW_SNR:
             return [low_snr_warning(snr, remedy)]
         return []
@@ -530,7 +529,12 @@ class StreamedShapeFromMotion(LinearCalibrator):
         alternation has run; None for the closed form."""
         if self.refinement == "closed_form" or self.passes <= 2:
             return None
-        return alternation_bias(self.physical_shape(), self.signal_to_noise() * math.sqrt(self.rows_per_direction))
+        return alternation_bias(self.physical_shape(), self.direction_snr())
+
+    def direction_snr(self) -> float:
+        """A fitted direction's SNR: a row's (:meth:`signal_to_noise`) or, tied, a pose mean's, ``sqrt(rows per
+        direction)`` times sharper; the alternation's bias goes by it (method §5)."""
+        return self.signal_to_noise() * math.sqrt(self.rows_per_direction)
 
     def closed_form_signal_to_noise(self) -> float:
         """``F |s| / noise`` after the closed form alone, the noise from the readings' scatter off the load space.
