@@ -598,6 +598,31 @@ def test_a_continuous_sweep_that_drifts_or_bends_is_flagged_by_its_neighbouring_
         assert z > SERIAL_MISFIT_Z and serial
 
 
+@pytest.mark.parametrize("step", [0.0, 10.0])
+def test_held_poses_quantised_more_coarsely_than_their_noise_are_flagged_without_a_time_column(step):
+    """An accelerometer triad held at 30 poses x 100 rows, read in counts 10x its noise and given no time column: rows
+    held still repeat one count, so no pose is found to check, and the rounding, the same for every row of a pose, does
+    not average out (a hostile tester's sessions: 4-9x the bars, trusted). Consecutive rows share it (serial misfit)."""
+    generator = torch.Generator().manual_seed(0)
+    shape = 0.1 * (torch.eye(3, dtype=torch.float64) + 0.05 * torch.randn(3, 3, generator=generator, dtype=torch.float64))
+    offset = 0.2 * torch.randn(3, generator=generator, dtype=torch.float64)
+    directions = torch.randn(30, 3, generator=generator, dtype=torch.float64).repeat_interleave(100, 0)
+    loads = 9.81 * directions / directions.norm(dim=1, keepdim=True)
+    noise = 0.01 * 9.81 * float(shape.norm(dim=0).mean())
+    readings = loads @ shape + offset + noise * torch.randn(3000, 3, generator=generator, dtype=torch.float64)
+    if step:
+        readings = step * noise * torch.round(readings / (step * noise))
+    recording = CalibrationRecording(readings=readings, loads=torch.full_like(loads, math.nan), magnitude=9.81)
+    result = diagnosed(recording, refinement="alternation")
+    serial = any(w.startswith("neighbouring rows miss the model together") for w in result.goodness.warnings)
+    if step:
+        assert bars_ratio(result, calibration_matrix(shape)) > 2
+        assert serial and not result.goodness.trustworthy
+    else:
+        assert bars_ratio(result, calibration_matrix(shape)) < 2
+        assert not serial and result.goodness.trustworthy
+
+
 @pytest.mark.parametrize("weak_axis", [0.5, 0.02])
 def test_the_alternations_bias_beyond_its_bars_is_flagged_on_an_ill_conditioned_sensor(weak_axis):
     """p = n = 3 at 1 % noise: the mean SNR is ~170, but a sensor 50x weaker on one axis reads that axis at SNR ~6, where

@@ -656,10 +656,11 @@ def goodness_of_fit(
                 warnings.append(
                     f"neighbouring rows miss the model together: means over {serial.batch_rows} consecutive rows miss it by "
                     f"{serial.ratio:.2f}x what independent noise explains, more than chance allows (z = {serial.z:.1f}): the "
-                    "sensor drifted, is not quite linear or has hysteresis (read as the mass turns), or its noise is "
-                    "correlated in time; none shrinks with the rows as the error bars do, so they are too small and the "
-                    "first three bias the calibration: hold the mass still at each pose and give a time column (the pose "
-                    "checks then tell which), and let the sensor warm up"
+                    "sensor drifted, is not quite linear or has hysteresis (read as the mass turns), its readings are "
+                    "quantised more coarsely than their noise (rows held still repeat one count, so the rounding does not "
+                    "average out), or its noise is correlated in time; none shrinks with the rows as the error bars do, so "
+                    "they are too small and the first four bias the calibration: hold the mass still at each pose and give "
+                    "a time column (the pose checks then tell which), and let the sensor warm up"
                 )
     if constraint is not None:
         ratio = constraint_noise_ratio(constraint[0], constraint[1], matrix, constraint[2])
