@@ -623,6 +623,37 @@ def test_held_poses_quantised_more_coarsely_than_their_noise_are_flagged_without
         assert not serial and result.goodness.trustworthy
 
 
+def unequal_channel_noise(seed: int, spread: float, slip: float = 1.0, rows: int = 3000) -> CalibrationRecording:
+    """8 channels, 3 axes, offsets, uniform orientations, no known load; each channel's noise (1 % of the signal on
+    average) drawn log-uniform over a factor ``spread``; the last 30 % of the rows' magnitude times ``slip``."""
+    generator = np.random.default_rng(seed)
+    shape, offset = generator.normal(size=(3, 8)), generator.normal(size=8)
+    directions = generator.normal(size=(rows, 3))
+    loads = 9.81 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    loads[int(0.7 * rows):] *= slip
+    scales = np.exp(generator.uniform(0, math.log(spread), size=8))
+    noise = 0.01 * 9.81 * np.linalg.norm(shape) / math.sqrt(24) * scales / np.sqrt(np.mean(scales**2))
+    readings = loads @ shape + offset + generator.normal(size=(rows, 8)) * noise
+    return CalibrationRecording(
+        readings=torch.from_numpy(readings), loads=torch.full((rows, 3), math.nan, dtype=torch.float64), magnitude=9.81
+    )
+
+
+@pytest.mark.parametrize("slip", [1.0, 0.98])
+def test_channels_of_unequal_noise_are_not_taken_for_a_model_that_misses(slip):
+    """Channels 10x apart in noise: weighed as if equal, the off-load-space noise mispredicts the magnitudes' scatter and
+    the residuals' tail (a hostile tester's clean sessions: 1.75x and 72 of 3,000 rows outlying, not trusted). Each
+    channel's noise estimated from the readings off the load space (eqs. H1, H2) clears the clean session and still
+    flags a mass 2 % light on 30 % of the rows."""
+    result = diagnosed(unequal_channel_noise(1, 10.0, slip), refinement="alternation").goodness
+    if slip == 1.0:
+        assert result.trustworthy, result.warnings
+        assert result.metrics["goodness/constraint_noise_ratio"] < 1.2
+    else:
+        assert not result.trustworthy and result.metrics["goodness/constraint_noise_ratio"] > 1.5
+    assert result.metrics.get("goodness/channel_noise_max_ratio", 1.0) > 1.5  # the noisiest channel, against the RMS
+
+
 @pytest.mark.parametrize("weak_axis", [0.5, 0.02])
 def test_the_alternations_bias_beyond_its_bars_is_flagged_on_an_ill_conditioned_sensor(weak_axis):
     """p = n = 3 at 1 % noise: the mean SNR is ~170, but a sensor 50x weaker on one axis reads that axis at SNR ~6, where

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from sfmnet.data.rows import IntervalSums
+from sfmnet.linalg.channel_noise import channel_noise_variances, residual_spread
 from sfmnet.linalg.chi_square import chi_square_quantile, chi_square_z, robust_noise_variance
 from sfmnet.linalg.frame import SPAN_TOLERANCE
 from sfmnet.linalg.group_means import group_means
@@ -409,41 +410,53 @@ def revisited_pose_warning(revisits: RevisitedPoses, channels: list[str]) -> str
     )
 
 
-def constraint_noise_ratio(loads: torch.Tensor, off_space: torch.Tensor, matrix: torch.Tensor, magnitude: float) -> float:
+def constraint_noise_ratio(
+    loads: torch.Tensor, off_space: torch.Tensor, matrix: torch.Tensor, magnitude: float, variances: torch.Tensor | None = None
+) -> float:
     """How far the rows' load magnitudes are from ``F`` against what the noise off the load space predicts.
 
     With more channels than axes (``p > n``) a linear sensor's readings off the row space of ``S``
     are pure noise, whatever the loads: ``sigma^2 = |Z (I - P)|^2 / ((f - n) (p - n))``. Each row's
-    least-squares load ``m_j = C (z_j - o)`` then has ``|m_j| - F ~ N(0, sigma^2 u_j C C^T u_j^T)``
-    (``u_j`` its direction) if the mass's magnitude is constant and the sensor linear. The RMS of
-    the standardised magnitudes is ~1 then; a slipped mass, a load that is not the calibration mass
-    or a nonlinear sensor raise it, even with no repeated pose to compare against.
+    least-squares load ``m_j = C (z_j - o)`` then has ``|m_j| - F ~ N(0, u_j C Sigma C^T u_j^T)``
+    (``u_j`` its direction, ``Sigma = sigma^2 I``, or ``diag(variances)`` for channels of unequal noise)
+    if the mass's magnitude is constant and the sensor linear. The RMS of the standardised magnitudes
+    is ~1 then; a slipped mass, a load that is not the calibration mass or a nonlinear sensor raise it,
+    even with no repeated pose to compare against.
 
     Args:
         loads: ``f x n`` least-squares loads of the unknown-load rows; off_space: ``f x p`` their
-            readings' component off the row space of ``S`` (raw units); matrix: ``C``, ``n x p``.
+            readings' component off the row space of ``S`` (raw units); matrix: ``C``, ``n x p``;
+            variances: ``p``, each channel's noise variance
+            (:func:`~sfmnet.linalg.channel_noise.channel_noise_variances`); None: equal, from ``off_space``.
     """
     f, p = off_space.shape
     n = loads.shape[1]
     dof = (f - n) * (p - n)
     if dof <= 0:
         return math.nan
-    noise = float(torch.linalg.vector_norm(off_space)) / math.sqrt(dof)
+    if variances is None:
+        variances = torch.full((p,), float(off_space.square().sum()) / dof, dtype=matrix.dtype)
     directions = loads / loads.norm(dim=1, keepdim=True)
-    spread = noise * (directions @ matrix).norm(dim=1)
+    spread = (directions @ matrix * variances.sqrt()).norm(dim=1)
     return float(((loads.norm(dim=1) - magnitude) / spread).pow(2).mean().sqrt())
 
 
-def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Tensor, float]:
+def outlying_rows(
+    residuals: torch.Tensor, dof: torch.Tensor, spread: tuple[torch.Tensor, torch.Tensor] | None = None
+) -> tuple[torch.Tensor, float]:
     """Rows whose squared residual is beyond the chi-square tail, the noise estimated robustly.
 
     ``|r_j|^2 / sigma^2 ~ chi2(k_j)`` for a row that fits, ``k_j`` its residual's degrees of
     freedom (``p`` for a known load, ``p - d + 1`` for an unknown orientation, whose ``d - 1``
     direction coordinates absorb part of the noise). ``sigma^2`` is the median of
-    ``|r_j|^2 / median(chi2(k_j))``, which a minority of bad rows barely moves.
+    ``|r_j|^2 / median(chi2(k_j))``, which a minority of bad rows barely moves. Channels of unequal
+    noise spread ``|r_j|^2 / sigma^2`` as ``(mu_j / nu_j) chi2(nu_j)`` instead, ``sigma^2`` their mean
+    variance (``spread``, :func:`~sfmnet.linalg.channel_noise.residual_spread`): a longer tail, and a
+    mean that depends on where the row reads.
 
     Args:
-        residuals: ``f x p`` (raw units); dof: ``f`` (long; rows with none left are never outliers).
+        residuals: ``f x p`` (raw units); dof: ``f`` (long; rows with none left are never outliers);
+            spread: ``mu``, ``nu`` (``f`` each); None: ``k_j`` both, channels of equal noise.
 
     Returns:
         The boolean ``f`` mask of outliers and the robust noise (raw units).
@@ -452,7 +465,9 @@ def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor) -> tuple[torch.Ten
     free = dof > 0
     if not bool(free.any()):
         return torch.zeros_like(free), math.nan
-    squares, dof = squares[free], dof[free].to(squares.dtype)
+    mean, dof = (dof, dof) if spread is None else spread
+    dof = dof[free].to(squares.dtype)
+    squares = squares[free] * dof / mean[free]
     variance = robust_noise_variance(squares, dof)
     limits = chi_square_quantile(dof, OUTLIER_Z)
     outliers = torch.zeros_like(free)
@@ -590,7 +605,8 @@ def goodness_of_fit(
         ``goodness/outliers``, ``goodness/outlier_fraction``, ``goodness/robust_noise``,
         ``goodness/known_load_rms``, ``goodness/known_load_ratio`` and ``goodness/known_load_pct``
         (the RMS as a percentage of the known loads' own RMS) (with known loads),
-        ``goodness/constraint_noise_ratio`` (with ``constraint``), ``goodness/valley_load_change``
+        ``goodness/constraint_noise_ratio`` and ``goodness/channel_noise_max_ratio`` (the noisiest channel's noise over
+        the channels' RMS, :func:`~sfmnet.linalg.channel_noise.channel_noise_variances`) (with ``constraint``), ``goodness/valley_load_change``
         (the largest RMS load change, a fraction of ``F``, among calibrations along the valley as likely
         as the fit), ``goodness/valley_bars_ratio`` (that change over the RMS load error the bars
         predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``),
@@ -604,7 +620,12 @@ def goodness_of_fit(
     metrics: dict[str, float] = {}
     warnings: list[str] = []
     dof = torch.where(known, p, p - direction_dims + 1)
-    outliers, robust_noise = outlying_rows(residuals, dof)
+    variances = channel_noise_variances(constraint[1], matrix) if constraint is not None else None
+    spread = None
+    if variances is not None:
+        metrics["goodness/channel_noise_max_ratio"] = float(variances.max() / variances.mean()) ** 0.5
+        spread = residual_spread(variances, matrix, known, constraint[0] / constraint[0].norm(dim=1, keepdim=True))
+    outliers, robust_noise = outlying_rows(residuals, dof, spread)
     if robust:
         fit_noise = robust_noise
     if groups is not None:
@@ -663,10 +684,12 @@ def goodness_of_fit(
                     "a time column (the pose checks then tell which), and let the sensor warm up"
                 )
     if constraint is not None:
-        ratio = constraint_noise_ratio(constraint[0], constraint[1], matrix, constraint[2])
+        # Outlying rows have their own check; here a few bumps would read as a mass that is not constant.
+        kept = ~outliers[~known]
+        ratio = constraint_noise_ratio(constraint[0][kept], constraint[1][kept], matrix, constraint[2], variances)
         metrics["goodness/constraint_noise_ratio"] = ratio
         # ratio^2 is a chi-square mean over f rows: 1 +- sqrt(2 / f) for a model that fits.
-        significant = ratio**2 > 1 + 4 * math.sqrt(2 / len(constraint[0]))
+        significant = ratio**2 > 1 + 4 * math.sqrt(2 / int(kept.sum()))
         if ratio > MAX_CONSTRAINT_RATIO and significant and not robust:
             warnings.append(
                 f"the rows' load magnitudes scatter {ratio:.2f}x more about the calibration magnitude than the noise "
