@@ -598,6 +598,23 @@ def test_a_continuous_sweep_that_drifts_or_bends_is_flagged_by_its_neighbouring_
         assert z > SERIAL_MISFIT_Z and serial
 
 
+@pytest.mark.parametrize("defect", ["", "drift", "nonlinear"])
+def test_a_sweep_given_in_shuffled_order_is_judged_by_rows_of_neighbouring_directions(defect):
+    """The sweeps above with their rows shuffled: recording order shares nothing any more (a hostile tester's shuffled
+    drifting and nonlinear sweeps: 3-10x the bars, trusted), but the misfit still goes with the orientation, so rows of
+    neighbouring directions share it (goodness.serial_misfit with directions)."""
+    recording, truth = swept_rows(3, defect)
+    order = torch.randperm(len(recording.readings), generator=torch.Generator().manual_seed(3))
+    shuffled = CalibrationRecording(readings=recording.readings[order], loads=recording.loads[order], magnitude=9.81)
+    result = diagnosed(shuffled, refinement="alternation")
+    assert result.goodness.metrics["goodness/serial_misfit_z"] < SERIAL_MISFIT_Z
+    flagged = any(w.startswith("rows of neighbouring orientations miss") for w in result.goodness.warnings)
+    if defect:
+        assert bars_ratio(result, truth) > 2 and flagged and not result.goodness.trustworthy
+    else:
+        assert bars_ratio(result, truth) < 2 and not flagged and result.goodness.trustworthy
+
+
 @pytest.mark.parametrize("step", [0.0, 10.0])
 def test_held_poses_quantised_more_coarsely_than_their_noise_are_flagged_without_a_time_column(step):
     """An accelerometer triad held at 30 poses x 100 rows, read in counts 10x its noise and given no time column: rows

@@ -113,6 +113,8 @@ def calibration_diagnostics(
         poses_found=found,
         alternation_bias=model.alternation_bias(),
         serial_design=torch.cat([loads, torch.ones(len(loads), 1, dtype=loads.dtype)], dim=1) if model.estimate_offset else loads,
+        # A force's direction is its load's; a wrench's (six axes) is not its load's first axes, so none is judged.
+        serial_directions=loads / loads.norm(dim=1, keepdim=True) if loads.shape[1] == direction_dims else None,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness

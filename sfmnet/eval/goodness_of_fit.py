@@ -27,6 +27,7 @@ import torch
 from sfmnet.data.rows import IntervalSums
 from sfmnet.linalg.channel_noise import channel_noise_variances, residual_spread
 from sfmnet.linalg.chi_square import chi_square_quantile, chi_square_z, robust_noise_variance
+from sfmnet.linalg.directions import neighbour_order
 from sfmnet.linalg.frame import SPAN_TOLERANCE
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
@@ -302,32 +303,42 @@ def batch_share(design: torch.Tensor, rows: int) -> float:
 
 
 def serial_misfit(
-    residuals: torch.Tensor, dof: torch.Tensor, noise: float, parameters: float, design: torch.Tensor
+    residuals: torch.Tensor,
+    dof: torch.Tensor,
+    noise: float,
+    parameters: float,
+    design: torch.Tensor,
+    directions: torch.Tensor | None = None,
 ) -> SerialMisfit | None:
     """How far means over consecutive rows miss the model, beyond what independent noise explains (method §5, "Rows
-    swept without holds").
+    swept without holds"), the rows in recording order or, with ``directions``, in an order of neighbouring
+    directions (:func:`~sfmnet.linalg.directions.neighbour_order`).
 
     The rows (in recording order) are cut into batches of ``b`` consecutive rows for each ``b`` in
     :data:`SERIAL_BATCH_ROWS` and each batch is judged as a pose is (:func:`pose_misfit_z`): for white noise and a
     model that fits, ``sum_B b |rbar_B|^2 / sigma^2 ~ chi2(sum_B k_B - parameters * share)``, ``share`` the part of the
     global parameters the batch means see (:func:`batch_share`); each row's own direction leaves its residual
     independent of its neighbours'. A misfit neighbouring rows share (drift in time; nonlinearity or hysteresis read as
-    the mass turns slowly) adds ``b |bias|^2`` per batch, the noise only its variance. Returns the batch size of largest
-    z, or None where no size gives :data:`MIN_SERIAL_BATCHES` batches.
+    the mass turns slowly) adds ``b |bias|^2`` per batch, the noise only its variance. A misfit that goes with the
+    orientation (a sensor not quite linear, drift along a sweep) is shared by rows of neighbouring directions in any
+    recording order, shuffled or random. Returns the batch size of largest z, or None where no size gives
+    :data:`MIN_SERIAL_BATCHES` batches.
 
     Args:
         residuals: ``f x p`` in recording order (raw units); dof: ``f`` (long), each row's residual degrees of freedom;
         noise: ``sigma`` (raw units); parameters: the global parameters fitted to the rows (:func:`pose_misfit_z`);
-        design: ``f x q``, each row's fitted load and, with offsets, a 1 (:func:`batch_share`).
+        design: ``f x q``, each row's fitted load and, with offsets, a 1 (:func:`batch_share`); directions: ``f x d``
+        (``d`` = 2 or 3), each row's unit direction, or None for recording order.
     """
     worst: SerialMisfit | None = None
     for rows in SERIAL_BATCH_ROWS:
         batches = len(residuals) // rows
         if batches < MIN_SERIAL_BATCHES:
             break
-        used = batches * rows
-        means = pose_means(residuals[:used], torch.arange(used) // rows, dof[:used])
-        fitted = parameters * batch_share(design[:used], rows)
+        order = torch.arange(len(residuals)) if directions is None else neighbour_order(directions, rows)
+        used = order[: batches * rows]
+        means = pose_means(residuals[used], torch.arange(len(used)) // rows, dof[used])
+        fitted = parameters * batch_share(design[used], rows)
         found = SerialMisfit(rows, pose_misfit_ratio(means, noise), pose_misfit_z(means, noise, fitted))
         if math.isfinite(found.z) and (worst is None or found.z > worst.z):
             worst = found
@@ -554,6 +565,7 @@ def goodness_of_fit(
     poses_found: bool = False,
     alternation_bias: float | None = None,
     serial_design: torch.Tensor | None = None,
+    serial_directions: torch.Tensor | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -594,6 +606,8 @@ def goodness_of_fit(
             :data:`MAX_BIAS_BARS_RATIO` times the relative bars (``matrix_std``), they do not cover the error.
         serial_design: ``f x q``, each row's fitted load and, with offsets, a 1: without groups, the rows in recording
             order are judged in batches (:func:`serial_misfit`); None: not judged.
+        serial_directions: ``f x d`` (``d`` = 2 or 3), each row's unit direction: with ``serial_design``, the rows are
+            judged in batches of neighbouring directions too; None: not.
         poses_found: ``groups`` are poses found in the readings
             (:func:`~sfmnet.eval.diagnostics.held_pose_groups`), not given by a time or pose column.
 
@@ -612,6 +626,8 @@ def goodness_of_fit(
         predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``),
         ``goodness/serial_misfit_ratio``, ``goodness/serial_misfit_z`` and ``goodness/serial_batch_rows``
         (:func:`serial_misfit`, the unknown rows in recording order, outliers left out) (without groups),
+        ``goodness/neighbour_misfit_ratio``, ``goodness/neighbour_misfit_z`` and ``goodness/neighbour_batch_rows``
+        (the same in an order of neighbouring directions) (without groups, with ``serial_directions``),
         ``goodness/pose_equations`` and, where fewer poses were found than counted up to,
         ``goodness/pose_scatter_ratio`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``), ``goodness/alternation_bias`` and
         ``goodness/bias_bars_ratio`` (with ``alternation_bias`` and ``matrix_std``).
@@ -682,6 +698,23 @@ def goodness_of_fit(
                     "average out), or its noise is correlated in time; none shrinks with the rows as the error bars do, so "
                     "they are too small and the first four bias the calibration: hold the mass still at each pose and give "
                     "a time column (the pose checks then tell which), and let the sensor warm up"
+                )
+        neighbours = None if serial_directions is None else serial_misfit(
+            residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept], serial_directions[kept]
+        )
+        if neighbours is not None:
+            metrics.update(
+                {"goodness/neighbour_misfit_ratio": neighbours.ratio, "goodness/neighbour_misfit_z": neighbours.z,
+                 "goodness/neighbour_batch_rows": float(neighbours.batch_rows)}
+            )
+            if neighbours.z > SERIAL_MISFIT_Z:
+                warnings.append(
+                    f"rows of neighbouring orientations miss the model together: means over {neighbours.batch_rows} rows "
+                    f"of nearly one direction miss it by {neighbours.ratio:.2f}x what independent noise explains, more "
+                    f"than chance allows (z = {neighbours.z:.1f}): the sensor is not quite linear or has hysteresis, or "
+                    "it drifted while the mass was turned (in whatever order the rows were given); the error bars are too "
+                    "small and the calibration biased: hold the mass still at each pose and give a time column, and let "
+                    "the sensor warm up"
                 )
     if constraint is not None:
         # Outlying rows have their own check; here a few bumps would read as a mass that is not constant.

@@ -10,8 +10,9 @@ off the load space, ``E = (Z - o) Q`` with ``Q = I - C^+ C`` the projector off t
 
 ``p (p + 1) / 2`` equations for ``p`` unknowns, but ``Q`` has rank ``p - n``, so at most ``(p - n)(p - n + 1) / 2`` of them
 are independent: ``v`` is identified from 3 channels off the load space (6 channels for 3 axes, 5 for 2), not from
-fewer, and even then some combinations of the channels are barely told apart by a few hundred rows. So (H1) is
-solved by ridge regression towards equal noise: a combination the rows do not tell stays at the mean noise.
+fewer (the noise is then taken as equal), and even then some combinations of the channels are barely told apart by a
+few hundred rows. So (H1) is solved by ridge regression towards equal noise: a combination the rows do not tell stays
+at the mean noise.
 """
 
 from __future__ import annotations
@@ -30,8 +31,8 @@ OFF_SPACE_TRIM = 50.0
 
 def channel_noise_variances(off_space: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor | None:
     """Each channel's noise variance from the readings off the load space: (H1) by ridge regression towards the
-    channels' mean variance ``sigma^2 = |E|^2 / ((f - n) (p - n))``, rows far off the load space left out; None with
-    no reading off the load space.
+    channels' mean variance ``sigma^2 = |E|^2 / ((f - n) (p - n))``, rows far off the load space left out; None where
+    (H1) cannot identify them (``(p - n)(p - n + 1) / 2 < p``: fewer than 6 channels for 3 axes, 5 for 2).
 
     Args:
         off_space: ``f x p``, the rows' readings less their offset and their least-squares load's reading
@@ -44,7 +45,9 @@ def channel_noise_variances(off_space: torch.Tensor, matrix: torch.Tensor) -> to
     off_space = off_space[squares <= OFF_SPACE_TRIM * squares.median()]
     f, p = off_space.shape
     n = matrix.shape[0]
-    if f <= n or p <= n:
+    # Fewer independent equations than channels: a ridge would fill the rest from the mean and put noise on channels
+    # the readings off the load space barely see, hiding a misfit in the load space (a tester's 5-channel sensor).
+    if f <= n or (p - n) * (p - n + 1) // 2 < p:
         return None
     complement = torch.eye(p, dtype=matrix.dtype) - torch.linalg.pinv(matrix) @ matrix
     upper = torch.triu_indices(p, p)

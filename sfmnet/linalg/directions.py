@@ -1,4 +1,4 @@
-"""Unit directions: spread evenly (the marginal likelihood's quadrature grid, the simulators' sweeps) and clustered into the poses a recording holds."""
+"""Unit directions: spread evenly (the marginal likelihood's quadrature grid, the simulators' sweeps), clustered into the poses a recording holds, and ordered so that neighbours in direction come together."""
 
 from __future__ import annotations
 
@@ -54,3 +54,24 @@ def median_angle_from_poses(directions: torch.Tensor, leaders: torch.Tensor) -> 
     # atan2 of the off-pose part: acos loses the small angles held poses have.
     sine = (directions - cosine[:, None] * means[pose]).norm(dim=1)
     return float(torch.atan2(sine, cosine).median())
+
+
+def neighbour_order(directions: torch.Tensor, batch_rows: int) -> torch.Tensor:
+    """An order of the unit rows (``f x d``, ``d`` = 2 or 3) in which consecutive rows are near in direction, so that
+    ``batch_rows`` of them at a time hold about a square patch: round the circle by angle; on the sphere in bands of
+    equal row counts by the last coordinate, each band by azimuth, every other one reversed (a snake), with about
+    ``sqrt(f / (pi batch_rows))`` bands, whatever law the directions follow.
+
+    Returns:
+        ``f`` (long), a permutation of the rows.
+    """
+    azimuth = torch.atan2(directions[:, 1], directions[:, 0])
+    if directions.shape[1] == 2:
+        return azimuth.argsort()
+    f = len(directions)
+    bands = max(1, round(math.sqrt(f / (math.pi * batch_rows))))
+    band = torch.empty(f, dtype=torch.long)
+    band[directions[:, 2].argsort()] = torch.arange(f) * bands // f
+    azimuth = torch.where(band % 2 == 1, -azimuth, azimuth)
+    # Band first, then azimuth within it (azimuth / (2 pi) + 0.5 lies in [0, 1]).
+    return (band + azimuth / (2 * math.pi + 1e-9) + 0.5).argsort()
