@@ -1,0 +1,137 @@
+"""Do the goodness-of-fit checks disown the error bars exactly when they fail? Run by hand:
+
+    python bench/goodness_checks.py [--sessions 6] [--only sweep-drift shuffled-drift ...]
+
+Random sessions outside the package's simulators, calibrated through the public API (``sfmnet.calibrate``, the
+alternation, no known loads, no time column) as a user without holds would: a random ``3 x p`` shape and offsets,
+one 1 kg mass, white noise 1 % of the signal per channel unless a case says otherwise. The orientations either sweep
+continuously (a 100 Hz path over most of the sphere, 6,000 rows) or are drawn uniform at random (3,000 rows). Each
+case is clean or carries one defect:
+
+- ``drift``: each channel's offset drifts 1 % of its full scale over the recording;
+- ``nonlinear``: each channel 0.5 % of its full scale from linear (a square law);
+- ``shuffled``: the sweep's rows given in random order (recording order then says nothing);
+- ``spread10``: each channel's noise drawn log-uniform over a factor 10 (RMS kept), 8 channels;
+- ``slip``: the last 30 % of the rows 2 % light;
+- ``quantised``: held at 30 poses x 100 rows, read in counts 10x the noise, 3 channels.
+
+Printed per case: sessions, how many the run trusts, the matrix error over its bars (Frobenius norms, the truth turned
+into the fit's arbitrary frame; 1 if the bars are right), and the count of silent failures (trusted at more than 2x
+the bars) and false alarms (a clean case disowned). The checks at stake are README's goodness-of-fit table: serial
+and neighbour misfit, channel noise (constraint and outliers) and the serial check's quantisation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import warnings
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+import sfmnet
+from sfmnet.calibration import calibration_matrix
+from sfmnet.linalg.frame import orthogonal_procrustes
+
+MAGNITUDE = 9.81
+
+
+class Case(NamedTuple):
+    name: str
+    orientations: str  # "sweep", "uniform" or "poses"
+    channels: int
+    defect: str  # "" or one of the module docstring's
+
+
+CASES = (
+    Case("sweep", "sweep", 6, ""),
+    Case("sweep-drift", "sweep", 6, "drift"),
+    Case("sweep-nonlinear", "sweep", 6, "nonlinear"),
+    Case("shuffled", "sweep", 6, "shuffled"),
+    Case("shuffled-drift", "sweep", 6, "shuffled drift"),
+    Case("shuffled-nonlinear", "sweep", 6, "shuffled nonlinear"),
+    Case("uniform", "uniform", 8, ""),
+    Case("uniform-nonlinear", "uniform", 8, "nonlinear"),
+    Case("spread10", "uniform", 8, "spread10"),
+    Case("spread10-slip", "uniform", 8, "spread10 slip"),
+    Case("poses", "poses", 3, ""),
+    Case("poses-quantised", "poses", 3, "quantised"),
+)
+
+
+def session(case: Case, seed: int) -> tuple[np.ndarray, torch.Tensor]:
+    """One session's readings (``f x p``) and true ``C``."""
+    generator = np.random.default_rng(seed)
+    shape, offset = generator.normal(size=(3, case.channels)), generator.normal(size=case.channels) * 5
+    if case.orientations == "sweep":
+        time = np.arange(6000) / 100
+        elevation = 1.2 * np.sin(0.31 * time + generator.uniform(0, 2 * np.pi))
+        azimuth = 0.47 * time
+        directions = np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], 1)
+    else:
+        directions = generator.normal(size=(30 if case.orientations == "poses" else 3000, 3))
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        if case.orientations == "poses":
+            directions = np.repeat(directions, 100, axis=0)
+    loads = MAGNITUDE * directions
+    rows = len(loads)
+    if "slip" in case.defect:
+        loads[int(0.7 * rows):] *= 0.98
+    linear = loads @ shape
+    scale = np.abs(linear).max(axis=0)
+    readings = linear + offset
+    if "drift" in case.defect:
+        readings += np.outer(np.arange(rows) / (rows - 1), 0.01 * scale * generator.choice([-1, 1], size=case.channels))
+    if "nonlinear" in case.defect:
+        readings += 0.005 * linear**2 / scale
+    noise = np.full(case.channels, 0.01 * MAGNITUDE * np.linalg.norm(shape) / math.sqrt(3 * case.channels))
+    if "spread10" in case.defect:
+        factors = np.exp(generator.uniform(0, math.log(10), size=case.channels))
+        noise *= factors / np.sqrt(np.mean(factors**2))
+    readings += generator.normal(size=readings.shape) * noise
+    if "quantised" in case.defect:
+        step = 10 * noise.mean()
+        readings = step * np.round(readings / step)
+    if "shuffled" in case.defect:
+        readings = readings[generator.permutation(rows)]
+    return readings, calibration_matrix(torch.from_numpy(shape))
+
+
+def bars_ratio(calibration: sfmnet.Calibration, truth: torch.Tensor) -> float:
+    """The matrix error over its bars, the truth turned into the fit's frame (no known load fixes it)."""
+    matrix = calibration.matrix.to(truth.dtype)
+    turn = orthogonal_procrustes(truth.T, matrix.T)
+    return float((turn.T @ truth - matrix).norm() / calibration.matrix_std.to(truth.dtype).norm())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sessions", type=int, default=6)
+    parser.add_argument("--only", nargs="*", help="case names (default: all)")
+    args = parser.parse_args()
+    warnings.filterwarnings("ignore")
+    print("| case | sessions | trusted | error / bars | silent failures | false alarms |")
+    print("|---|---|---|---|---|---|")
+    for case in CASES:
+        if args.only and case.name not in args.only:
+            continue
+        trusted, ratios = [], []
+        for seed in range(args.sessions):
+            readings, truth = session(case, seed)
+            calibration = sfmnet.calibrate(readings, MAGNITUDE, axes=3, **{"model.refinement": "alternation"})
+            trusted.append(calibration.error_bars_trustworthy)
+            ratios.append(bars_ratio(calibration, truth))
+        silent = sum(t and r > 2 for t, r in zip(trusted, ratios))
+        # Shuffling alone is no defect.
+        false_alarms = sum(not t for t in trusted) if case.defect in ("", "shuffled", "spread10") else 0
+        print(
+            f"| {case.name} | {len(trusted)} | {sum(trusted)} | {min(ratios):.2f}-{max(ratios):.2f} | {silent} | "
+            f"{false_alarms} |",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
