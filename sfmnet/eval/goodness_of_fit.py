@@ -805,8 +805,8 @@ def goodness_of_fit(
         if ratio > MAX_BIAS_BARS_RATIO:
             warnings.append(
                 f"the alternation's bias, about {100 * alternation_bias:.2g} % of the matrix, is {ratio:.1f}x its error bars "
-                f"({100 * bars:.2g} %): fitting each row's direction on its own shrinks the calibration by about half "
-                "the noise across the direction, set by the sensor's weakest axis, and more rows shrink the bars but "
+                f"({100 * bars:.2g} %): fitting each row's direction on its own biases the calibration by about half "
+                "the noise across the direction, most along the sensor's weakest axis, and more rows shrink the bars but "
                 "not the bias; hold the mass still at each pose and give a time column (a pose's mean then has one "
                 "direction, sqrt(rows) times sharper), load the sensor more heavily, or set model.refinement=marginal"
             )

@@ -226,8 +226,8 @@ def alternation_bias(shape: torch.Tensor, snr: float) -> float:
     """The alternation's bias (untied directions fitted row by row), to first order, as a fraction of the matrix.
 
     A row's noise reaches its load as ``C e`` (covariance ``sigma^2 C C^T``); the part across the row's direction is
-    taken up by the fitted direction and adds to ``|m|^2`` on average, so the fit shrinks the calibration by about half
-    the transverse variance over ``F^2`` (method §5, eq. B1): averaged over the sphere,
+    taken up by the fitted direction and adds to ``|m|^2`` on average, so the fit biases the calibration by about half
+    the transverse variance over ``F^2``, most along the shape's weakest axis (the matrix too large there) (method §5, eq. B1): averaged over the sphere,
     ``(d - 1) / (2 d) sum_i 1 / SNR_i^2`` with ``SNR_i = F sigma_i(S) / noise`` along each of the shape's singular
     directions. On a well-conditioned sensor that is the familiar ``(d - 1) / (2 SNR^2)``; on an ill-conditioned one
     the weak axis sets it, whatever the mean SNR (``F |s| / noise``). First order and averaged over the sphere, it is a
