@@ -345,6 +345,30 @@ def serial_misfit(
     return worst
 
 
+def batch_misfit_warning(misfit: SerialMisfit, by_direction: bool) -> str:
+    """The warning for batch means that miss the model beyond chance (:func:`serial_misfit`): rows consecutive in
+    recording order, or (``by_direction``) of neighbouring directions."""
+    found = (
+        f"means over {misfit.batch_rows} rows miss it by {misfit.ratio:.2f}x what independent noise explains, more than "
+        f"chance allows (z = {misfit.z:.1f})"
+    )
+    if by_direction:
+        return (
+            f"rows of neighbouring orientations miss the model together: {found.replace(' rows ', ' rows of nearly one direction ', 1)}: "
+            "the sensor is not quite linear or has hysteresis, or it drifted while the mass was turned (in whatever order "
+            "the rows were given); the error bars are too small and the calibration biased: hold the mass still at each "
+            "pose and give a time column, and let the sensor warm up"
+        )
+    return (
+        f"neighbouring rows miss the model together: {found.replace(' rows ', ' consecutive rows ', 1)}: the sensor "
+        "drifted, is not quite linear or has hysteresis (read as the mass turns), its readings are quantised more "
+        "coarsely than their noise (rows held still repeat one count, so the rounding does not average out), or its "
+        "noise is correlated in time; none shrinks with the rows as the error bars do, so they are too small and the "
+        "first four bias the calibration: hold the mass still at each pose and give a time column (the pose checks "
+        "then tell which), and let the sensor warm up"
+    )
+
+
 def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int) -> str | None:
     """A warning when rows repeat the row before on every channel far more often than chance, or None.
 
@@ -683,39 +707,19 @@ def goodness_of_fit(
     if groups is None and serial_design is not None:
         # Outlying rows have their own check; here they would read as a misfit their batch shares.
         kept = ~known & ~outliers
-        serial = serial_misfit(residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept])
-        if serial is not None:
+        orders = {"serial": None, "neighbour": None if serial_directions is None else serial_directions[kept]}
+        for order, directions in orders.items():
+            if order == "neighbour" and directions is None:
+                continue
+            misfit = serial_misfit(residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept], directions)
+            if misfit is None:
+                continue
             metrics.update(
-                {"goodness/serial_misfit_ratio": serial.ratio, "goodness/serial_misfit_z": serial.z,
-                 "goodness/serial_batch_rows": float(serial.batch_rows)}
+                {f"goodness/{order}_misfit_ratio": misfit.ratio, f"goodness/{order}_misfit_z": misfit.z,
+                 f"goodness/{order}_batch_rows": float(misfit.batch_rows)}
             )
-            if serial.z > SERIAL_MISFIT_Z:
-                warnings.append(
-                    f"neighbouring rows miss the model together: means over {serial.batch_rows} consecutive rows miss it by "
-                    f"{serial.ratio:.2f}x what independent noise explains, more than chance allows (z = {serial.z:.1f}): the "
-                    "sensor drifted, is not quite linear or has hysteresis (read as the mass turns), its readings are "
-                    "quantised more coarsely than their noise (rows held still repeat one count, so the rounding does not "
-                    "average out), or its noise is correlated in time; none shrinks with the rows as the error bars do, so "
-                    "they are too small and the first four bias the calibration: hold the mass still at each pose and give "
-                    "a time column (the pose checks then tell which), and let the sensor warm up"
-                )
-        neighbours = None if serial_directions is None else serial_misfit(
-            residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept], serial_directions[kept]
-        )
-        if neighbours is not None:
-            metrics.update(
-                {"goodness/neighbour_misfit_ratio": neighbours.ratio, "goodness/neighbour_misfit_z": neighbours.z,
-                 "goodness/neighbour_batch_rows": float(neighbours.batch_rows)}
-            )
-            if neighbours.z > SERIAL_MISFIT_Z:
-                warnings.append(
-                    f"rows of neighbouring orientations miss the model together: means over {neighbours.batch_rows} rows "
-                    f"of nearly one direction miss it by {neighbours.ratio:.2f}x what independent noise explains, more "
-                    f"than chance allows (z = {neighbours.z:.1f}): the sensor is not quite linear or has hysteresis, or "
-                    "it drifted while the mass was turned (in whatever order the rows were given); the error bars are too "
-                    "small and the calibration biased: hold the mass still at each pose and give a time column, and let "
-                    "the sensor warm up"
-                )
+            if misfit.z > SERIAL_MISFIT_Z:
+                warnings.append(batch_misfit_warning(misfit, by_direction=directions is not None))
     if constraint is not None:
         # Outlying rows have their own check; here a few bumps would read as a mass that is not constant.
         kept = ~outliers[~known]

@@ -29,6 +29,12 @@ NOISE_RIDGE_STANDARD_ERRORS = 5.0
 OFF_SPACE_TRIM = 50.0
 
 
+def off_load_space_projector(matrix: torch.Tensor) -> torch.Tensor:
+    """``Q = I - C^+ C``, ``p x p``: the projector off the row space of ``C`` (``n x p``), where a linear sensor reads
+    noise only."""
+    return torch.eye(matrix.shape[1], dtype=matrix.dtype) - torch.linalg.pinv(matrix) @ matrix
+
+
 def channel_noise_variances(off_space: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor | None:
     """Each channel's noise variance from the readings off the load space: (H1) by ridge regression towards the
     channels' mean variance ``sigma^2 = |E|^2 / ((f - n) (p - n))``, rows far off the load space left out; None where
@@ -49,7 +55,7 @@ def channel_noise_variances(off_space: torch.Tensor, matrix: torch.Tensor) -> to
     # the readings off the load space barely see, hiding a misfit in the load space (a tester's 5-channel sensor).
     if f <= n or (p - n) * (p - n + 1) // 2 < p:
         return None
-    complement = torch.eye(p, dtype=matrix.dtype) - torch.linalg.pinv(matrix) @ matrix
+    complement = off_load_space_projector(matrix)
     upper = torch.triu_indices(p, p)
     design = complement[upper[0]] * complement[upper[1]]
     covariance = (off_space.T @ off_space / (f - n))[upper[0], upper[1]]
@@ -80,9 +86,8 @@ def residual_spread(
     Returns:
         ``mu``, ``nu``: ``f`` each.
     """
-    p = matrix.shape[1]
     sigma = variances / variances.mean()
-    complement = torch.eye(p, dtype=matrix.dtype) - torch.linalg.pinv(matrix) @ matrix
+    complement = off_load_space_projector(matrix)
     off = complement * sigma @ complement
     along = directions @ matrix
     along = along / along.norm(dim=1, keepdim=True)
