@@ -707,10 +707,10 @@ def goodness_of_fit(
     if groups is None and serial_design is not None:
         # Outlying rows have their own check; here they would read as a misfit their batch shares.
         kept = ~known & ~outliers
-        orders = {"serial": None, "neighbour": None if serial_directions is None else serial_directions[kept]}
+        orders: dict[str, torch.Tensor | None] = {"serial": None}
+        if serial_directions is not None:
+            orders["neighbour"] = serial_directions[kept]
         for order, directions in orders.items():
-            if order == "neighbour" and directions is None:
-                continue
             misfit = serial_misfit(residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept], directions)
             if misfit is None:
                 continue
