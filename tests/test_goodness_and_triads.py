@@ -550,13 +550,15 @@ def test_a_magnitude_the_known_loads_disagree_with_is_not_trusted(magnitude_erro
     assert warned == (magnitude_error > 0) and calibration.extra["error_bars_trustworthy"] == (magnitude_error == 0)
 
 
-def swept_rows(seed: int, defect: str = "", channels: int = 6, rows: int = 3000) -> tuple[CalibrationRecording, torch.Tensor]:
-    """One 1 kg mass swept continuously (no holds) over most of the sphere at 100 Hz, no known load, noise 1 % of the
-    signal per channel; ``defect``: "drift" (each channel's offset drifts 1 % of its full scale over the recording) or
-    "nonlinear" (each channel 0.5 % of its full scale from linear, a square law)."""
+def swept_rows(
+    seed: int, defect: str = "", channels: int = 6, rows: int = 3000, seconds: float | None = None
+) -> tuple[CalibrationRecording, torch.Tensor]:
+    """One 1 kg mass swept continuously (no holds) over most of the sphere for ``seconds`` (default: at 100 Hz), no
+    known load, noise 1 % of the signal per channel; ``defect``: "drift" (each channel's offset drifts 1 % of its full
+    scale over the recording) or "nonlinear" (each channel 0.5 % of its full scale from linear, a square law)."""
     generator = np.random.default_rng(seed)
     shape, offset = generator.normal(size=(3, channels)), generator.normal(size=channels) * 5
-    time = np.arange(rows) / 100
+    time = np.arange(rows) * ((seconds or rows / 100) / rows)
     elevation = 1.2 * np.sin(0.31 * time + generator.uniform(0, 2 * np.pi))
     azimuth = 0.47 * time
     loads = 9.81 * np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], 1)
@@ -596,6 +598,19 @@ def test_a_continuous_sweep_that_drifts_or_bends_is_flagged_by_its_neighbouring_
         # The defect matters (the bars do not cover it) and is named.
         assert bars_ratio(result, swept_rows(3, defect)[1]) > 2
         assert z > SERIAL_MISFIT_Z and serial
+
+
+@pytest.mark.parametrize("defect", ["", "drift"])
+def test_a_short_sweeps_slow_drift_is_flagged_by_a_few_long_batches(defect):
+    """200 rows logged over a minute's sweep: a slow drift shows in means over 32 rows, of which there are only 6
+    (goodness.MIN_SERIAL_BATCHES); asking for 16 batches had left only the 4-row means, and this drift at z = 1.7."""
+    result = diagnosed(swept_rows(3, defect, rows=200, seconds=60)[0], refinement="alternation")
+    z = result.goodness.metrics["goodness/serial_misfit_z"]
+    if defect:
+        assert z > SERIAL_MISFIT_Z and not result.goodness.trustworthy
+        assert result.goodness.metrics["goodness/serial_batch_rows"] >= 16
+    else:
+        assert z < SERIAL_MISFIT_Z and result.goodness.trustworthy
 
 
 @pytest.mark.parametrize("defect", ["", "drift", "nonlinear"])

@@ -67,10 +67,13 @@ POSE_MISFIT_Z = 3.0
 # slowly, so a misfit that depends on the orientation (a sensor not quite linear, hysteresis) or on time (drift) is shared
 # by neighbouring rows and grows in their means, while independent noise shrinks. Several sizes, because how many rows
 # share a misfit depends on how fast the mass turns.
-SERIAL_BATCH_ROWS = (4, 16, 64, 256)
-# ... each taken only where it gives this many batches.
-MIN_SERIAL_BATCHES = 16
-# The largest batch size's z may reach this (the largest of four correlated standard normals: p ~ 1e-3 each).
+SERIAL_BATCH_ROWS = (4, 8, 16, 32, 64, 128, 256)
+# ... each taken only where it gives this many batches. A short recording's slow drift shows in a few long batches: at 200
+# rows of a 1 % drift (12 sweeps each of 3 and 6 channels) 16 batches at least flagged 3 and 8, 6 batches 6 and 11. On
+# 360 clean sessions (sweeps and uniform rows, 3 and 6 channels, 120-400 rows) a size of 6-15 batches scored a mean of
+# 0.3-1.1, a standard deviation of 0.5-0.9 and at most 2.9.
+MIN_SERIAL_BATCHES = 6
+# The largest batch size's z may reach this (the largest of seven correlated standard normals: p ~ 1e-3 each).
 SERIAL_MISFIT_Z = 4.0
 # Holds of a pose held more than once may differ by this many standard deviations of what noise allows (p ~ 1e-3): on 100
 # simulated sets of 14 holds of 50 rows (2 poses revisited) under white noise z had mean -0.2, standard deviation 0.84 and
