@@ -23,8 +23,8 @@ from sfmnet.simulators.simulated_sensor import FingertipDataModule
 from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.goodness_of_fit import (
-    MAX_BIAS_BARS_RATIO, MAX_POSE_MISFIT_RATIO, MAX_RELATIVE_MATRIX_STD, MAX_RELATIVE_MATRIX_STD_LEARNT_LAW, POSE_MISFIT_Z,
-    SERIAL_MISFIT_Z, GoodnessOfFit,
+    MAX_BIAS_BARS_RATIO, MAX_KNOWN_LOAD_RATIO, MAX_KNOWN_LOAD_SCALE_Z, MAX_POSE_MISFIT_RATIO, MAX_RELATIVE_MATRIX_STD,
+    MAX_RELATIVE_MATRIX_STD_LEARNT_LAW, MIN_UNKNOWN_ROW_COVERAGE, POSE_MISFIT_Z, SERIAL_MISFIT_Z, GoodnessOfFit,
 )
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, relative_matrix_std
 from sfmnet.linalg.frame import orthogonal_procrustes
@@ -528,6 +528,69 @@ def test_known_loads_nearly_in_one_plane_do_not_fix_the_mirror(elevation: float,
     assert bool(mirrored) == ambiguous
     assert calibration.extra["error_bars_trustworthy"] == (not ambiguous)
     assert (error > 0.5) if ambiguous else (error < 0.1)
+
+
+def known_pose_session(
+    seed: int, mass_error: float = 0.0, known_rows: int = 1, turntable: bool = False
+) -> tuple[CalibrationRecording, torch.Tensor]:
+    """A 6-channel sensor with offsets, three known poses along the axes held ``known_rows`` rows each, then 600 rows
+    of unknown load, noise 0.5 % of each channel's span, the magnitude given as 9.81 N. The mass is ``mass_error`` heavier
+    than that (the known loads are its true ones); ``turntable``: the 600 rows turned about one axis (one great circle)
+    instead of over the sphere."""
+    generator = np.random.default_rng(seed)
+    shape, offset = generator.normal(size=(3, 6)), 2 * generator.normal(size=6)
+    if turntable:
+        axis = np.array([0.2, 0.1, 1.0]) / np.linalg.norm([0.2, 0.1, 1.0])
+        first = np.cross(axis, [1.0, 0.0, 0.0])
+        first /= np.linalg.norm(first)
+        angle = generator.uniform(0, 2 * np.pi, 600)
+        directions = np.cos(angle)[:, None] * first + np.sin(angle)[:, None] * np.cross(axis, first)
+    else:
+        directions = generator.normal(size=(600, 3))
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    known = np.repeat(np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), known_rows, axis=0)
+    loads = 9.81 * (1 + mass_error) * np.concatenate([known, directions])
+    linear = loads @ shape
+    readings = linear + offset + generator.normal(size=linear.shape) * 0.005 * np.abs(linear).max(axis=0)
+    given = np.full_like(loads, np.nan)
+    given[: len(known)] = loads[: len(known)]
+    recording = CalibrationRecording(readings=torch.from_numpy(readings), loads=torch.from_numpy(given), magnitude=9.81)
+    return recording, calibration_matrix(torch.from_numpy(shape))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("mass_error", [0.0, 0.01])
+def test_a_mass_one_percent_off_the_magnitude_is_flagged_along_the_known_loads(seed: int, mass_error: float):
+    """Known loads held for one row each, the mass 1 % heavier than the magnitude given: spread over every axis of every
+    pose the known-load misfit reads 1.8x (under its 2.5) with the matrix 2.6-2.9x its bars; along the loads themselves
+    it is one number, 5 standard deviations out (goodness.known_load_scale)."""
+    recording, truth = known_pose_session(seed, mass_error)
+    result = diagnosed(recording, refinement="alternation")
+    metrics = result.goodness.metrics
+    error_over_bars = float((result.model.calibration_matrix() - truth).norm() / result.uncertainty.matrix_std.norm())
+    if mass_error:
+        assert metrics["goodness/known_load_ratio"] < MAX_KNOWN_LOAD_RATIO and error_over_bars > 2
+        assert metrics["goodness/known_load_scale_z"] < -MAX_KNOWN_LOAD_SCALE_Z
+        assert metrics["goodness/known_load_scale_pct"] == pytest.approx(-100 * mass_error, abs=0.5)
+        assert [w for w in result.goodness.warnings if w.startswith("the calibration puts the known loads")]
+        assert not result.goodness.trustworthy
+    else:
+        assert abs(metrics["goodness/known_load_scale_z"]) < 3 and result.goodness.trustworthy
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_turntable_is_not_trusted_across_its_plane(seed: int):
+    """The mass turned about one axis only (one great circle), three known poses of 20 rows off it: the magnitude
+    constraint says nothing across the plane to first order, and the matrix is 3.5-4.5x its bars; only the unknown rows'
+    own coverage (0.06-0.09 where every row's is 0.3) tells (goodness.MIN_UNKNOWN_ROW_COVERAGE). Over the sphere
+    (the test above's clean sessions) it is near 1."""
+    recording, truth = known_pose_session(seed, known_rows=20, turntable=True)
+    result = diagnosed(recording, refinement="alternation")
+    assert float((result.model.calibration_matrix() - truth).norm() / result.uncertainty.matrix_std.norm()) > 3
+    assert result.goodness.metrics["goodness/unknown_row_coverage"] < MIN_UNKNOWN_ROW_COVERAGE
+    assert [w.startswith("the rows of unknown load were turned nearly in one plane") for w in result.goodness.warnings] == [True]
+    sphere = diagnosed(known_pose_session(seed, known_rows=20)[0], refinement="alternation")
+    assert sphere.goodness.metrics["goodness/unknown_row_coverage"] > 0.9
 
 
 @pytest.mark.parametrize(("magnitude_error", "seed"), [(0.0, 0), (0.0, 1), (0.01, 0), (0.01, 1)])
