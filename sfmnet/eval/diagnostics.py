@@ -18,9 +18,9 @@ from sfmnet.eval.goodness_of_fit import (
 from sfmnet.linalg.directions import distinct_directions, median_angle_from_poses
 from sfmnet.linalg.factorisation import (
     WARN_RANK_GAP,
+    direction_coverage,
     known_load_equations,
     metric_unknowns,
-    motion_coverage,
     readings_rank_gap,
 )
 from sfmnet.linalg.frame import orthogonal_procrustes
@@ -121,19 +121,12 @@ def calibration_diagnostics(
         serial_design=torch.cat([loads, torch.ones(len(loads), 1, dtype=loads.dtype)], dim=1) if model.estimate_offset else loads,
         # A force's direction is its load's; a wrench's (six axes) is not its load's first axes, so none is judged.
         serial_directions=loads / loads.norm(dim=1, keepdim=True) if loads.shape[1] == direction_dims else None,
-        unknown_row_coverage=unknown_row_coverage(loads[~known]) if model.constrained and loads.shape[1] == direction_dims else None,
+        # What the magnitude constraint itself sees: the unknown rows' directions (a wrench's load is not its direction).
+        unknown_row_coverage=direction_coverage(loads[~known])
+        if model.constrained and loads.shape[1] == direction_dims and bool((~known).any()) else None,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
-
-
-def unknown_row_coverage(loads: torch.Tensor) -> float | None:
-    """:func:`~sfmnet.linalg.factorisation.motion_coverage` of the unknown-load rows' directions (``loads``, ``f' x n``,
-    each a force of the one magnitude), or None without such rows: what the magnitude constraint itself sees."""
-    if not len(loads):
-        return None
-    directions = loads / loads.norm(dim=1, keepdim=True).clamp_min(torch.finfo(loads.dtype).tiny)
-    return motion_coverage(directions.T @ directions, len(directions), 1.0)
 
 
 def held_pose_groups(recording: CalibrationRecording, fit_noise: float) -> torch.Tensor | None:

@@ -28,6 +28,7 @@ from sfmnet.data.rows import IntervalSums
 from sfmnet.linalg.channel_noise import channel_noise_variances, residual_spread
 from sfmnet.linalg.chi_square import chi_square_quantile, chi_square_z, robust_noise_variance
 from sfmnet.linalg.directions import neighbour_order
+from sfmnet.linalg.factorisation import MIN_UNKNOWN_ROW_COVERAGE
 from sfmnet.linalg.frame import SPAN_TOLERANCE
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
@@ -115,14 +116,6 @@ MAX_RELATIVE_MATRIX_STD_LEARNT_LAW = 0.08
 # the 8 over them 1.10-6.5x (the bias predicted within 2x low); on one with a single axis 50x weaker, 2.7x where 5.4x
 # was predicted (tests/test_goodness_and_triads.py).
 MAX_BIAS_BARS_RATIO = 1.0
-# The rows of unknown load must span the load space to this coverage (:func:`~sfmnet.linalg.factorisation.motion_coverage`
-# of their directions alone; 1 for the whole sphere) for the error bars to hold. Turned nearly in one plane (a turntable),
-# they tell the magnitude constraint nothing to first order across it: the calibration there rests on the known loads and
-# on each row's noise read as a load across the plane, which first-order bars do not describe (a hostile tester's
-# turntables, one great circle and three known poses of 20 or 100 rows: 10 of 16 trusted, 8 of them at 2.5-8.5x their
-# bars, coverage over every row 0.30-0.58). The laws whose bars hold sit above it: a band within 30 degrees of the equator 0.5, the
-# circle's two arcs within 30 degrees of an axis 0.42, a 60-degree cone 0.79 (bench/crb_ratio.py --laws).
-MIN_UNKNOWN_ROW_COVERAGE = 0.3
 # The marginal fit and the alternation fitted beside it (from direction SNR 10, where the alternation's bias is within
 # its bars) may differ by this many of the fit's error bars (|matrix_std|_F) before one of them is said to be wrong:
 # past 2, at least one is more than its bars from the truth. Two right estimators on the same rows differ by far less:

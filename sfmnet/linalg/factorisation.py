@@ -494,6 +494,22 @@ def motion_coverage(motion_gram: torch.Tensor, count: float, magnitude: float) -
     return math.sqrt(max(smallest, 0.0)) / (magnitude * math.sqrt(count / n))
 
 
+# The rows of unknown load must span the load space to this coverage (:func:`direction_coverage` of their directions
+# alone; 1 for the whole sphere) for the error bars to hold. Turned nearly in one plane (a turntable), they tell the
+# magnitude constraint nothing to first order across it: the calibration there rests on the known loads and on each row's
+# noise read as a load across the plane, which first-order bars do not describe (a hostile tester's turntables, one great
+# circle and three known poses of 20 or 100 rows: 10 of 16 trusted, 8 of them at 2.5-8.5x their bars, the coverage over
+# every row 0.30-0.58). The laws whose bars hold sit above it: a band within 30 degrees of the equator 0.5, the circle's
+# two arcs within 30 degrees of an axis 0.42, a 60-degree cone 0.79 (bench/crb_ratio.py --laws).
+MIN_UNKNOWN_ROW_COVERAGE = 0.3
+
+
+def direction_coverage(loads: torch.Tensor) -> float:
+    """:func:`motion_coverage` of the directions of ``loads`` (``f x n``, nonzero), whatever their magnitudes."""
+    directions = loads / loads.norm(dim=1, keepdim=True).clamp_min(torch.finfo(loads.dtype).tiny)
+    return motion_coverage(directions.T @ directions, len(directions), 1.0)
+
+
 def require_coverage(motion_gram: torch.Tensor, count: float, magnitude: float) -> float:
     """:func:`motion_coverage`, raising :class:`SfmnetError` below :data:`MIN_COVERAGE`."""
     coverage = motion_coverage(motion_gram, count, magnitude)
