@@ -527,6 +527,33 @@ def known_load_poses(known: torch.Tensor, groups: torch.Tensor | None) -> torch.
     return torch.unique(known, dim=0, return_inverse=True)[1] if groups is None else groups
 
 
+class WhitenedKnownPoses(NamedTuple):
+    """Each known pose's mean error and load, whitened by the noise a calibrated load carries (:func:`whitened_known_poses`):
+    ``errors`` and ``loads`` ``n x K``, ``counts`` ``K`` (rows per pose)."""
+
+    errors: torch.Tensor
+    loads: torch.Tensor
+    counts: torch.Tensor
+
+
+def whitened_known_poses(
+    calibrated: torch.Tensor, known: torch.Tensor, matrix: torch.Tensor, groups: torch.Tensor | None
+) -> WhitenedKnownPoses:
+    """The known poses (:func:`known_load_poses`) as :class:`WhitenedKnownPoses`: ``L^-1 ebar_k`` and ``L^-1 l_k`` with
+    ``L L^T = C C^T``, the covariance a reading's white noise gives its calibrated load (per unit noise variance).
+
+    Args:
+        calibrated: ``k x n``, ``C (z_k - o)`` of the known rows; known: ``k x n`` their loads.
+        matrix: ``C``, ``n x p``; groups: ``k`` (long) or None (rows given one load together).
+    """
+    labels = known_load_poses(known, groups)
+    errors, _, counts = group_means(calibrated - known, labels)
+    loads = group_means(known, labels)[0]
+    cholesky = torch.linalg.cholesky(matrix @ matrix.T)
+    whitened = (torch.linalg.solve_triangular(cholesky, values.T, upper=False) for values in (errors, loads))
+    return WhitenedKnownPoses(*whitened, counts)
+
+
 def known_load_misfit(
     calibrated: torch.Tensor, known: torch.Tensor, matrix: torch.Tensor, noise: float, groups: torch.Tensor | None
 ) -> tuple[float, float]:
@@ -543,13 +570,11 @@ def known_load_misfit(
         calibrated: ``k x n``, ``C (z_k - o)`` of the known rows; known: ``k x n`` their loads.
         matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (rows given one load together).
     """
-    error = calibrated - known
-    rms = float(error.pow(2).mean().sqrt())
-    means, _, counts = group_means(error, known_load_poses(known, groups))
+    rms = float((calibrated - known).pow(2).mean().sqrt())
     if not noise > 0:
         return rms, math.inf
-    whitened = torch.linalg.solve_triangular(torch.linalg.cholesky(matrix @ matrix.T), means.T, upper=False)
-    spread = math.sqrt(float((counts * whitened.pow(2).sum(dim=0)).mean()) / matrix.shape[0])
+    poses = whitened_known_poses(calibrated, known, matrix, groups)
+    spread = math.sqrt(float((poses.counts * poses.errors.pow(2).sum(dim=0)).mean()) / matrix.shape[0])
     return rms, spread / noise
 
 
@@ -586,16 +611,11 @@ def known_load_scale(
         matrix: ``C``, ``n x p``; noise: raw units; groups: ``k`` (long) or None (rows given one load together);
         unknown_rows: how many rows carry the magnitude alone.
     """
-    labels = known_load_poses(known, groups)
-    means, _, counts = group_means(calibrated - known, labels)
-    loads = group_means(known, labels)[0]
-    cholesky = torch.linalg.cholesky(matrix @ matrix.T)
-    whitened_loads = torch.linalg.solve_triangular(cholesky, loads.T, upper=False)
-    whitened_errors = torch.linalg.solve_triangular(cholesky, means.T, upper=False)
-    weight = float((counts * whitened_loads.pow(2).sum(dim=0)).sum())
+    poses = whitened_known_poses(calibrated, known, matrix, groups)
+    weight = float((poses.counts * poses.loads.pow(2).sum(dim=0)).sum())
     if not (weight > 0 and noise > 0):
         return KnownLoadScale(math.nan, math.nan)
-    excess = float((counts * (whitened_loads * whitened_errors).sum(dim=0)).sum()) / weight
+    excess = float((poses.counts * (poses.loads * poses.errors).sum(dim=0)).sum()) / weight
     deviation = noise * math.sqrt((1 + len(calibrated) / max(unknown_rows, 1)) / weight)
     return KnownLoadScale(excess, excess / deviation)
 
