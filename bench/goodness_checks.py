@@ -3,22 +3,27 @@
     python bench/goodness_checks.py [--sessions 6] [--only sweep-drift shuffled-drift ...]
 
 Random sessions outside the package's simulators, calibrated through the public API (``sfmnet.calibrate``, the
-alternation, no known loads, no time column) as a user without holds would: a random ``3 x p`` shape and offsets,
-one 1 kg mass, white noise 1 % of the signal per channel unless a case says otherwise. The orientations either sweep
-continuously (a 100 Hz path over most of the sphere, 6,000 rows) or are drawn uniform at random (3,000 rows). Each
-case is clean or carries one defect:
+alternation, no time column; no known loads unless a case says so) as a user without holds would: a random ``3 x p``
+shape and offsets, one 1 kg mass, white noise 1 % of the signal per channel unless a case says otherwise. The
+orientations either sweep continuously (a 100 Hz path over most of the sphere, 6,000 rows; ``short sweep``: the same
+path logged 200 times over a minute), are drawn uniform at random (3,000 rows), or turn about one tilted axis
+(``turntable``, one great circle, 600 rows). The ``known`` cases put three known poses along the axes first (a row
+each; 20 each on the turntable), noise 0.5 % of each channel's span, 600 rows. Each case is clean or carries one
+defect:
 
 - ``drift``: each channel's offset drifts 1 % of its full scale over the recording;
 - ``nonlinear``: each channel 0.5 % of its full scale from linear (a square law);
 - ``shuffled``: the sweep's rows given in random order (recording order then says nothing);
 - ``spread10``: each channel's noise drawn log-uniform over a factor 10 (RMS kept), 8 channels;
 - ``slip``: the last 30 % of the rows 2 % light;
-- ``quantised``: held at 30 poses x 100 rows, read in counts 10x the noise, 3 channels.
+- ``quantised``: held at 30 poses x 100 rows, read in counts 10x the noise, 3 channels;
+- ``mass``: the mass 1 % heavier than the magnitude given (the known loads its true ones).
 
 Printed per case: sessions, how many the run trusts, the matrix error over its bars (Frobenius norms, the truth turned
-into the fit's arbitrary frame; 1 if the bars are right), and the count of silent failures (trusted at more than 2x
-the bars) and false alarms (a clean case disowned). The checks at stake are README's goodness-of-fit table: serial
-and neighbour misfit, channel noise (constraint and outliers) and the serial check's quantisation.
+into the fit's arbitrary frame, or as it is where known loads fix the frame; 1 if the bars are right), and the count
+of silent failures (trusted at more than 2x the bars) and false alarms (a clean case disowned). The checks at stake are
+README's goodness-of-fit table: serial and neighbour misfit, channel noise (constraint and outliers), the serial check's
+quantisation, the known loads' scale and the unknown rows' coverage.
 """
 
 from __future__ import annotations
@@ -58,15 +63,24 @@ CASES = (
     Case("spread10-slip", "uniform", 8, "spread10 slip"),
     Case("poses", "poses", 3, ""),
     Case("poses-quantised", "poses", 3, "quantised"),
+    Case("short-sweep", "short sweep", 6, ""),
+    Case("short-sweep-drift", "short sweep", 6, "drift"),
+    Case("known", "known uniform", 6, ""),
+    Case("known-mass", "known uniform", 6, "mass"),
+    Case("turntable", "known turntable", 6, ""),
 )
 
+KNOWN_DIRECTIONS = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
-def session(case: Case, seed: int) -> tuple[np.ndarray, torch.Tensor]:
-    """One session's readings (``f x p``) and true ``C``."""
+
+def session(case: Case, seed: int) -> tuple[np.ndarray, np.ndarray | None, torch.Tensor]:
+    """One session's readings (``f x p``), known loads (``f x 3``, NaN where unknown; None without) and true ``C``."""
     generator = np.random.default_rng(seed)
     shape, offset = generator.normal(size=(3, case.channels)), generator.normal(size=case.channels) * 5
-    if case.orientations == "sweep":
-        time = np.arange(6000) / 100
+    if case.orientations.startswith("known"):
+        return known_session(case, generator, shape, offset)
+    if case.orientations in ("sweep", "short sweep"):
+        time = np.arange(6000) / 100 if case.orientations == "sweep" else np.arange(200) * 0.3
         elevation = 1.2 * np.sin(0.31 * time + generator.uniform(0, 2 * np.pi))
         azimuth = 0.47 * time
         directions = np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], 1)
@@ -96,13 +110,37 @@ def session(case: Case, seed: int) -> tuple[np.ndarray, torch.Tensor]:
         readings = step * np.round(readings / step)
     if "shuffled" in case.defect:
         readings = readings[generator.permutation(rows)]
-    return readings, calibration_matrix(torch.from_numpy(shape))
+    return readings, None, calibration_matrix(torch.from_numpy(shape))
 
 
-def bars_ratio(calibration: sfmnet.Calibration, truth: torch.Tensor) -> float:
-    """The matrix error over its bars, the truth turned into the fit's frame (no known load fixes it)."""
+def known_session(
+    case: Case, generator: np.random.Generator, shape: np.ndarray, offset: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, torch.Tensor]:
+    """A ``known`` case's session (:func:`session`): three known poses, then 600 rows uniform or on a turntable."""
+    if case.orientations == "known turntable":
+        axis = np.array([0.2, 0.1, 1.0]) / np.linalg.norm([0.2, 0.1, 1.0])
+        first = np.cross(axis, [1.0, 0.0, 0.0])
+        first /= np.linalg.norm(first)
+        angle = generator.uniform(0, 2 * np.pi, 600)
+        directions = np.cos(angle)[:, None] * first + np.sin(angle)[:, None] * np.cross(axis, first)
+        known = np.repeat(KNOWN_DIRECTIONS, 20, axis=0)
+    else:
+        directions = generator.normal(size=(600, 3))
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        known = KNOWN_DIRECTIONS
+    loads = MAGNITUDE * (1.01 if case.defect == "mass" else 1.0) * np.concatenate([known, directions])
+    linear = loads @ shape
+    readings = linear + offset + generator.normal(size=linear.shape) * 0.005 * np.abs(linear).max(axis=0)
+    given = np.full_like(loads, np.nan)
+    given[: len(known)] = loads[: len(known)]
+    return readings, given, calibration_matrix(torch.from_numpy(shape))
+
+
+def bars_ratio(calibration: sfmnet.Calibration, truth: torch.Tensor, frame_fixed: bool) -> float:
+    """The matrix error over its bars; without known loads (``frame_fixed`` False) the truth turned into the fit's
+    frame, which nothing fixes."""
     matrix = calibration.matrix.to(truth.dtype)
-    turn = orthogonal_procrustes(truth.T, matrix.T)
+    turn = torch.eye(3, dtype=truth.dtype) if frame_fixed else orthogonal_procrustes(truth.T, matrix.T)
     return float((turn.T @ truth - matrix).norm() / calibration.matrix_std.to(truth.dtype).norm())
 
 
@@ -119,13 +157,13 @@ def main() -> None:
             continue
         trusted, ratios = [], []
         for seed in range(args.sessions):
-            readings, truth = session(case, seed)
-            calibration = sfmnet.calibrate(readings, MAGNITUDE, axes=3, **{"model.refinement": "alternation"})
+            readings, loads, truth = session(case, seed)
+            calibration = sfmnet.calibrate(readings, MAGNITUDE, loads, axes=3, **{"model.refinement": "alternation"})
             trusted.append(calibration.error_bars_trustworthy)
-            ratios.append(bars_ratio(calibration, truth))
+            ratios.append(bars_ratio(calibration, truth, loads is not None))
         silent = sum(t and r > 2 for t, r in zip(trusted, ratios))
-        # Shuffling alone is no defect.
-        false_alarms = sum(not t for t in trusted) if case.defect in ("", "shuffled", "spread10") else 0
+        # Shuffling alone is no defect; a turntable is one, though the case names none.
+        false_alarms = sum(not t for t in trusted) if case.defect in ("", "shuffled", "spread10") and case.name != "turntable" else 0
         print(
             f"| {case.name} | {len(trusted)} | {sum(trusted)} | {min(ratios):.2f}-{max(ratios):.2f} | {silent} | "
             f"{false_alarms} |",
