@@ -96,6 +96,8 @@ def calibration_diagnostics(
     pose_sums = model.interval_sums()
     # Pose means of a sample of every w-th row (a streamed fit without sums) see only 1 / w of the fit's parameters.
     share = 1.0 if pose_sums is not None else 1 / model.unknown_row_weight(recording)
+    # A force's direction is its load's; a wrench's (six axes) is not its load's first axes, so none is judged.
+    directions = loads / loads.norm(dim=1, keepdim=True) if loads.shape[1] == direction_dims else None
     goodness = goodness_of_fit(
         residuals,
         recording.readings,
@@ -119,11 +121,10 @@ def calibration_diagnostics(
         poses_found=found,
         alternation_bias=model.alternation_bias(),
         serial_design=torch.cat([loads, torch.ones(len(loads), 1, dtype=loads.dtype)], dim=1) if model.estimate_offset else loads,
-        # A force's direction is its load's; a wrench's (six axes) is not its load's first axes, so none is judged.
-        serial_directions=loads / loads.norm(dim=1, keepdim=True) if loads.shape[1] == direction_dims else None,
-        # What the magnitude constraint itself sees: the unknown rows' directions (a wrench's load is not its direction).
-        unknown_row_coverage=direction_coverage(loads[~known])
-        if model.constrained and loads.shape[1] == direction_dims and bool((~known).any()) else None,
+        serial_directions=directions,
+        # What the magnitude constraint itself sees: the unknown rows' directions.
+        unknown_row_coverage=direction_coverage(directions[~known])
+        if model.constrained and directions is not None and bool((~known).any()) else None,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
