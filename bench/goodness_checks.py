@@ -7,8 +7,9 @@ alternation, no time column; no known loads unless a case says so) as a user wit
 shape and offsets, one 1 kg mass, white noise 1 % of the signal per channel unless a case says otherwise. The
 orientations either sweep continuously (a 100 Hz path over most of the sphere, 6,000 rows; ``short sweep``: the same
 path logged 200 times over a minute), are drawn uniform at random (3,000 rows), or turn about one tilted axis
-(``turntable``, one great circle, 600 rows). The ``known`` cases put three known poses along the axes first (a row
-each; 20 each on the turntable), noise 0.5 % of each channel's span, 600 rows. Each case is clean or carries one
+(``turntable``, one great circle, 600 rows; ``circle30``, ``circle45``: one circle 30 or 45 degrees off the turntable's
+plane). The ``known`` cases put three known poses along the axes first (a row each; 20 each on the turntable and the
+circles), noise 0.5 % of each channel's span, 600 rows. Each case is clean or carries one
 defect:
 
 - ``drift``: each channel's offset drifts 1 % of its full scale over the recording;
@@ -21,9 +22,10 @@ defect:
 
 Printed per case: sessions, how many the run trusts, the matrix error over its bars (Frobenius norms, the truth turned
 into the fit's arbitrary frame, or as it is where known loads fix the frame; 1 if the bars are right), and the count
-of silent failures (trusted at more than 2x the bars) and false alarms (a clean case disowned). The checks at stake are
-README's goodness-of-fit table: serial and neighbour misfit, channel noise (constraint and outliers), the serial check's
-quantisation, the known loads' scale and the unknown rows' coverage.
+of silent failures (trusted at more than 2x the bars), false alarms (a clean case disowned) and refusals (the error
+ranges over the sessions fitted). The checks at stake are README's goodness-of-fit table: serial and neighbour misfit,
+channel noise (constraint and outliers), the serial check's quantisation, the known loads' scale and the unknown rows'
+coverage, about the origin and about their mean.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ import torch
 
 import sfmnet
 from sfmnet.calibration import calibration_matrix
+from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import orthogonal_procrustes
 
 MAGNITUDE = 9.81
@@ -68,6 +71,8 @@ CASES = (
     Case("known", "known uniform", 6, ""),
     Case("known-mass", "known uniform", 6, "mass"),
     Case("turntable", "known turntable", 6, ""),
+    Case("circle30", "known circle 0.5", 6, ""),
+    Case("circle45", "known circle 0.707", 6, ""),
 )
 
 KNOWN_DIRECTIONS = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -116,13 +121,16 @@ def session(case: Case, seed: int) -> tuple[np.ndarray, np.ndarray | None, torch
 def known_session(
     case: Case, generator: np.random.Generator, shape: np.ndarray, offset: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, torch.Tensor]:
-    """A ``known`` case's session (:func:`session`): three known poses, then 600 rows uniform or on a turntable."""
-    if case.orientations == "known turntable":
+    """A ``known`` case's session (:func:`session`): three known poses, then 600 rows uniform or on one circle (a
+    turntable's great circle, or ``known circle h``: the directions ``h`` along its axis)."""
+    if case.orientations == "known turntable" or case.orientations.startswith("known circle"):
+        height = float(case.orientations.split()[-1]) if case.orientations.startswith("known circle") else 0.0
         axis = np.array([0.2, 0.1, 1.0]) / np.linalg.norm([0.2, 0.1, 1.0])
         first = np.cross(axis, [1.0, 0.0, 0.0])
         first /= np.linalg.norm(first)
         angle = generator.uniform(0, 2 * np.pi, 600)
-        directions = np.cos(angle)[:, None] * first + np.sin(angle)[:, None] * np.cross(axis, first)
+        circle = np.cos(angle)[:, None] * first + np.sin(angle)[:, None] * np.cross(axis, first)
+        directions = math.sqrt(1 - height**2) * circle + height * axis
         known = np.repeat(KNOWN_DIRECTIONS, 20, axis=0)
     else:
         directions = generator.normal(size=(600, 3))
@@ -150,23 +158,28 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", help="case names (default: all)")
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
-    print("| case | sessions | trusted | error / bars | silent failures | false alarms |")
-    print("|---|---|---|---|---|---|")
+    print("| case | sessions | trusted | error / bars | silent failures | false alarms | refused |")
+    print("|---|---|---|---|---|---|---|")
     for case in CASES:
         if args.only and case.name not in args.only:
             continue
-        trusted, ratios = [], []
+        trusted, ratios, refused = [], [], 0
         for seed in range(args.sessions):
             readings, loads, truth = session(case, seed)
-            calibration = sfmnet.calibrate(readings, MAGNITUDE, loads, axes=3, **{"model.refinement": "alternation"})
+            try:
+                calibration = sfmnet.calibrate(readings, MAGNITUDE, loads, axes=3, **{"model.refinement": "alternation"})
+            except SfmnetError:
+                refused += 1
+                continue
             trusted.append(calibration.error_bars_trustworthy)
             ratios.append(bars_ratio(calibration, truth, loads is not None))
         silent = sum(t and r > 2 for t, r in zip(trusted, ratios))
-        # Shuffling alone is no defect; a turntable is one, though the case names none.
-        false_alarms = sum(not t for t in trusted) if case.defect in ("", "shuffled", "spread10") and case.name != "turntable" else 0
+        # Shuffling alone is no defect; one circle of orientations is one, though the case names none.
+        clean = case.defect in ("", "shuffled", "spread10") and case.name not in ("turntable", "circle30", "circle45")
+        false_alarms = sum(not t for t in trusted) + refused if clean else 0
+        span = f"{min(ratios):.2f}-{max(ratios):.2f}" if ratios else "-"
         print(
-            f"| {case.name} | {len(trusted)} | {sum(trusted)} | {min(ratios):.2f}-{max(ratios):.2f} | {silent} | "
-            f"{false_alarms} |",
+            f"| {case.name} | {args.sessions} | {sum(trusted)} | {span} | {silent} | {false_alarms} | {refused} |",
             flush=True,
         )
 

@@ -21,10 +21,12 @@ from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.simulators.simulated_sensor import FingertipDataModule
 from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
+from sfmnet.errors import SfmnetError
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.goodness_of_fit import (
     MAX_BIAS_BARS_RATIO, MAX_KNOWN_LOAD_RATIO, MAX_KNOWN_LOAD_SCALE_Z, MAX_POSE_MISFIT_RATIO, MAX_RELATIVE_MATRIX_STD,
-    MAX_RELATIVE_MATRIX_STD_LEARNT_LAW, MIN_UNKNOWN_ROW_COVERAGE, POSE_MISFIT_Z, SERIAL_MISFIT_Z, GoodnessOfFit,
+    MAX_RELATIVE_MATRIX_STD_LEARNT_LAW, MIN_UNKNOWN_ROW_CENTRED_COVERAGE, MIN_UNKNOWN_ROW_COVERAGE, POSE_MISFIT_Z,
+    SERIAL_MISFIT_Z, GoodnessOfFit,
 )
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, relative_matrix_std
 from sfmnet.linalg.frame import orthogonal_procrustes
@@ -531,12 +533,12 @@ def test_known_loads_nearly_in_one_plane_do_not_fix_the_mirror(elevation: float,
 
 
 def known_pose_session(
-    seed: int, mass_error: float = 0.0, known_rows: int = 1, turntable: bool = False
+    seed: int, mass_error: float = 0.0, known_rows: int = 1, turntable: bool = False, height: float = 0.0
 ) -> tuple[CalibrationRecording, torch.Tensor]:
     """A 6-channel sensor with offsets, three known poses along the axes held ``known_rows`` rows each, then 600 rows
     of unknown load, noise 0.5 % of each channel's span, the magnitude given as 9.81 N. The mass is ``mass_error`` heavier
-    than that (the known loads are its true ones); ``turntable``: the 600 rows turned about one axis (one great circle)
-    instead of over the sphere."""
+    than that (the known loads are its true ones); ``turntable``: the 600 rows turned about one axis (one circle, its
+    directions ``height`` along the axis: 0 a great circle) instead of over the sphere."""
     generator = np.random.default_rng(seed)
     shape, offset = generator.normal(size=(3, 6)), 2 * generator.normal(size=6)
     if turntable:
@@ -544,7 +546,8 @@ def known_pose_session(
         first = np.cross(axis, [1.0, 0.0, 0.0])
         first /= np.linalg.norm(first)
         angle = generator.uniform(0, 2 * np.pi, 600)
-        directions = np.cos(angle)[:, None] * first + np.sin(angle)[:, None] * np.cross(axis, first)
+        circle = np.cos(angle)[:, None] * first + np.sin(angle)[:, None] * np.cross(axis, first)
+        directions = math.sqrt(1 - height**2) * circle + height * axis
     else:
         directions = generator.normal(size=(600, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
@@ -591,6 +594,30 @@ def test_a_turntable_is_not_trusted_across_its_plane(seed: int):
     assert [w.startswith("the rows of unknown load were turned nearly in one plane") for w in result.goodness.warnings] == [True]
     sphere = diagnosed(known_pose_session(seed, known_rows=20)[0], refinement="alternation")
     assert sphere.goodness.metrics["goodness/unknown_row_coverage"] > 0.9
+
+
+def test_one_tilted_circle_of_orientations_is_not_trusted():
+    """The mass turned about one axis only, its directions 30 degrees off the turntable's plane (a small circle), three
+    known poses of 20 rows: the constant magnitude passes a pencil of ellipsoids through the circle, and the matrix is
+    2.5x its bars with no other check failing; the unknown rows' coverage about their mean (0.005, where the sphere's is
+    near 1) tells (goodness.MIN_UNKNOWN_ROW_CENTRED_COVERAGE). Their coverage about the origin (0.5) does not."""
+    recording, truth = known_pose_session(6, known_rows=20, turntable=True, height=0.5)
+    result = diagnosed(recording, refinement="alternation")
+    assert float((result.model.calibration_matrix() - truth).norm() / result.uncertainty.matrix_std.norm()) > 2
+    assert result.goodness.metrics["goodness/unknown_row_coverage"] > MIN_UNKNOWN_ROW_COVERAGE
+    assert result.goodness.metrics["goodness/unknown_row_centred_coverage"] < MIN_UNKNOWN_ROW_CENTRED_COVERAGE
+    assert [w.startswith("the rows of unknown load lie nearly on one circle") for w in result.goodness.warnings] == [True]
+    sphere = diagnosed(known_pose_session(6, known_rows=20)[0], refinement="alternation")
+    assert sphere.goodness.metrics["goodness/unknown_row_centred_coverage"] > 0.9 and sphere.goodness.trustworthy
+
+
+def test_known_loads_placed_badly_by_one_circle_say_so():
+    """A circle 45 degrees off the plane with known poses of 5 rows: the frame's fit puts a known load far from where
+    the readings do, and the refusal names the circle (the unknown rows' readings about their mean barely rank 3), not
+    known loads that contradict each other."""
+    recording, _ = known_pose_session(1, known_rows=5, turntable=True, height=0.707)
+    with pytest.raises(SfmnetError, match="^the rows of unknown load lie on one circle of orientations"):
+        diagnosed(recording, refinement="alternation")
 
 
 @pytest.mark.parametrize(("magnitude_error", "seed"), [(0.0, 0), (0.0, 1), (0.01, 0), (0.01, 1)])

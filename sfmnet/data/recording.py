@@ -11,7 +11,9 @@ import torch
 
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.preprocessing.revisited_poses import RevisitedPoses
+from sfmnet.preprocessing.row_repeats import RowRepeats
 from sfmnet.preprocessing.static_intervals import StaticIntervals
+from sfmnet.preprocessing.stuck_channels import StuckReading
 
 
 @dataclass(frozen=True)
@@ -149,6 +151,10 @@ class CalibrationData:
         static_intervals: where a continuous recording was static (its other rows are left out of
             the recordings), or None where every row was taken as static.
         warnings: what the reader noticed in the file (e.g. a channel that looks like a timestamp).
+        row_repeats: how often the fitted rows repeat the row before (within the static intervals where a stream's
+            were found, else over every row), or None where not counted.
+        stuck_readings: channels stuck at one value or clipped at their range while the others moved, over rows the fit
+            uses.
         revisited_poses: how far apart the holds of poses held more than once are (a group column's labels), or None
             where no pose was held twice.
     """
@@ -162,6 +168,8 @@ class CalibrationData:
     truth: SensorTruth | None = None
     static_intervals: StaticIntervals | None = None
     warnings: list[str] = field(default_factory=list)
+    row_repeats: RowRepeats | None = None
+    stuck_readings: list[StuckReading] = field(default_factory=list)
     revisited_poses: RevisitedPoses | None = None
 
     def without_group(self, group: int) -> CalibrationData:

@@ -35,6 +35,8 @@ WARN_COVERAGE = 0.5
 # Poses found in the readings that scatter more than this many times the fit's noise are not held poses: held rows
 # scatter by the reading noise alone, which no fit's residuals fall below (lobes of a continuous sweep do).
 MAX_FOUND_POSE_SCATTER = 2.0
+# Poses found in the readings that scatter under this fraction of the readings' spread are copies of one row each.
+COPY_SCATTER = 1e-9
 
 
 def calibration_diagnostics(
@@ -125,6 +127,9 @@ def calibration_diagnostics(
         # What the magnitude constraint itself sees: the unknown rows' directions.
         unknown_row_coverage=direction_coverage(directions[~known])
         if model.constrained and directions is not None and bool((~known).any()) else None,
+        unknown_row_centred_coverage=direction_coverage(directions[~known], centred=True)
+        if model.constrained and directions is not None and directions.shape[1] == 3 and int((~known).sum()) > 3
+        else None,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
@@ -134,7 +139,8 @@ def held_pose_groups(recording: CalibrationRecording, fit_noise: float) -> torch
     """``f`` (long): the poses the rows were held at, found in their readings where no time or pose column gives them
     (:func:`~sfmnet.linalg.held_poses.held_pose_clusters`), split by load as
     :attr:`~sfmnet.data.recording.CalibrationRecording.same_load_groups` splits given ones; None where the rows show
-    none, or where they scatter more than :data:`MAX_FOUND_POSE_SCATTER` times ``fit_noise`` (raw units) within them."""
+    none, or where they scatter more than :data:`MAX_FOUND_POSE_SCATTER` times ``fit_noise`` (raw units) within them, or
+    under :data:`COPY_SCATTER` of the readings' spread (copies of one reading)."""
     # One configuration at a time: another mass's poses may lie among this one's readings.
     configuration = recording.row_configuration
     clusters = torch.empty(len(configuration), dtype=torch.long)
@@ -149,7 +155,11 @@ def held_pose_groups(recording: CalibrationRecording, fit_noise: float) -> torch
     if not found:
         return None
     groups = replace(recording, groups=clusters).same_load_groups
-    return groups if within_group_noise(recording.readings, groups) <= MAX_FOUND_POSE_SCATTER * fit_noise else None
+    within = within_group_noise(recording.readings, groups)
+    # Rows identical to rounding are one reading logged several times (the repeated-rows check says so), not a pose
+    # held with its noise: judged against them, any fit would miss by 1e14x.
+    copies = within <= COPY_SCATTER * float(recording.readings.std())
+    return groups if not copies and within <= MAX_FOUND_POSE_SCATTER * fit_noise else None
 
 
 def global_parameters(model: LinearCalibrator, recording: CalibrationRecording, direction_dims: int) -> int:

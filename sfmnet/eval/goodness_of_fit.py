@@ -28,12 +28,14 @@ from sfmnet.data.rows import IntervalSums
 from sfmnet.linalg.channel_noise import channel_noise_variances, residual_spread
 from sfmnet.linalg.chi_square import chi_square_quantile, chi_square_z, robust_noise_variance
 from sfmnet.linalg.directions import neighbour_order
-from sfmnet.linalg.factorisation import MIN_UNKNOWN_ROW_COVERAGE
+from sfmnet.linalg.factorisation import MIN_UNKNOWN_ROW_CENTRED_COVERAGE, MIN_UNKNOWN_ROW_COVERAGE
 from sfmnet.linalg.frame import SPAN_TOLERANCE
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.osculating_valley import LIKELY_NATS, ValleyScan
 from sfmnet.linalg.uncertainty import relative_matrix_std
 from sfmnet.preprocessing.revisited_poses import RevisitedPoses
+from sfmnet.preprocessing.row_repeats import RowRepeats
+from sfmnet.preprocessing.stuck_channels import StuckReading
 # The fit's residual noise may exceed the within-pose noise by this much before the model is
 # said not to describe the data (it is ~1 for a model that fits, whatever p and n).
 MAX_NOISE_RATIO = 1.5
@@ -380,7 +382,7 @@ def batch_misfit_warning(misfit: SerialMisfit, by_direction: bool) -> str:
     )
 
 
-def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int) -> str | None:
+def repeated_rows_warning(repeats: RowRepeats, judged: str) -> str | None:
     """A warning when rows repeat the row before on every channel far more often than chance, or None.
 
     Channels that repeat by chance (readings coarser than their noise) seldom all repeat together: their
@@ -391,18 +393,46 @@ def repeated_rows_warning(repeated: int, channel_repeats: np.ndarray, steps: int
     repeating channel's rate.
 
     Args:
-        repeated: rows equal to the row before on every channel; channel_repeats: ``p`` such counts per
-            channel alone; steps: row-to-row steps (within the static intervals: rows kept less intervals).
+        repeats: the counts (:func:`~sfmnet.preprocessing.row_repeats.row_repeats`), over the rows ``judged`` names
+            (``static rows``, ``rows``).
     """
-    least = int(channel_repeats.min()) if len(channel_repeats) else 0
+    repeated, steps = repeats.whole, repeats.steps
+    least = int(repeats.per_channel.min()) if len(repeats.per_channel) else 0
     if steps <= 0 or repeated <= MAX_REPEATED_FRACTION * steps or repeated <= 0.5 * least:
         return None
     return (
-        f"{100 * repeated / steps:.1f} % of the static rows repeat the row before on every channel (a logger polling faster "
+        f"{100 * repeated / steps:.1f} % of the {judged} repeat the row before on every channel (a logger polling faster "
         "than the sensor updates, duplicated rows, or readings coarser than their noise): repeated readings are not new "
         "measurements, so the error bars, which count every row, are too small; drop the repeats or log at the "
         "sensor's own rate"
     )
+
+
+def stuck_channel_warnings(stuck: list[StuckReading], channels: list[str]) -> list[str]:
+    """A warning for each channel stuck at one value or clipped at its range while the others moved
+    (:func:`~sfmnet.preprocessing.stuck_channels.stuck_readings`): those rows do not read the load.
+
+    Args:
+        stuck: the stuck readings over rows the fit uses; channels: the ``p`` names.
+    """
+    warnings = []
+    for reading in stuck:
+        name, rows, moved = channels[reading.channel], f"{reading.rows:,}", f"{100 * reading.moved_share:.0f} %"
+        if reading.kind == "run":
+            warnings.append(
+                f"channel '{name}' reads exactly {reading.value:.6g} on {rows} consecutive rows (data rows "
+                f"{reading.first}-{reading.stop - 1}, 0-based) while other channels move by up to {moved} of their range, "
+                f"where elsewhere it repeats the row before on {100 * reading.chance:.1f} % of steps: it was stuck or "
+                "disconnected there, and those rows do not read the load; drop them (or the channel) and rerun"
+            )
+        else:
+            warnings.append(
+                f"channel '{name}' reads exactly {reading.value:.6g}, its {reading.kind} reading, on {rows} rows (data rows "
+                f"{reading.first} to {reading.stop - 1}, 0-based) while other channels move by up to {moved} of their range "
+                f"over them, where {round(reading.chance * reading.rows)} read the level next to it: it was clipped at its "
+                "range there, and those rows do not read the load; drop them (or use a lighter mass) and rerun"
+            )
+    return warnings
 
 
 def correlated_noise_warning(ratio: float, dof: int, batch: str, channel: str) -> str | None:
@@ -669,6 +699,7 @@ def goodness_of_fit(
     serial_design: torch.Tensor | None = None,
     serial_directions: torch.Tensor | None = None,
     unknown_row_coverage: float | None = None,
+    unknown_row_centred_coverage: float | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -713,6 +744,8 @@ def goodness_of_fit(
             judged in batches of neighbouring directions too; None: not.
         unknown_row_coverage: the coverage of the unknown-load rows' directions alone; under
             :data:`MIN_UNKNOWN_ROW_COVERAGE` the bars are disowned; None: not judged (a wrench's load is not its direction).
+        unknown_row_centred_coverage: the same about the directions' mean; under :data:`MIN_UNKNOWN_ROW_CENTRED_COVERAGE`
+            (one circle of orientations) the bars are disowned; None: not judged (fewer than three force axes).
         poses_found: ``groups`` are poses found in the readings
             (:func:`~sfmnet.eval.diagnostics.held_pose_groups`), not given by a time or pose column.
 
@@ -892,6 +925,17 @@ def goodness_of_fit(
                 f"sphere is 1, under {MIN_UNKNOWN_ROW_COVERAGE:g}): the constant magnitude says next to nothing across that "
                 "plane, so the calibration there rests on the known loads and on noise read as load, which the error bars "
                 "do not describe; turn the mass about a second axis as well (a turntable tilted two or three ways)"
+            )
+    if unknown_row_centred_coverage is not None:
+        metrics["goodness/unknown_row_centred_coverage"] = unknown_row_centred_coverage
+        in_plane = unknown_row_coverage is not None and unknown_row_coverage < MIN_UNKNOWN_ROW_COVERAGE
+        if unknown_row_centred_coverage < MIN_UNKNOWN_ROW_CENTRED_COVERAGE and not in_plane:
+            warnings.append(
+                f"the rows of unknown load lie nearly on one circle of orientations (turned about one axis only: their "
+                f"coverage about their mean {unknown_row_centred_coverage:.2f}, under {MIN_UNKNOWN_ROW_CENTRED_COVERAGE:g}): "
+                "the constant magnitude fits a family of calibrations through such a circle, not one, so the calibration "
+                "rests on the known loads and on noise, which the error bars do not describe; turn the mass about a second "
+                "axis as well"
             )
     if alternation_bias is not None and matrix_std is not None:
         bars = relative_matrix_std(matrix_std, matrix)

@@ -60,6 +60,7 @@ def frame_rotation(
     hint_motion: torch.Tensor | None = None,
     hint: MirrorHint | None = None,
     rank_gap: float | None = None,
+    circle_gap: float | None = None,
 ) -> torch.Tensor:
     """The orthogonal transform ``R`` that takes recovered loads into the frame of the known loads.
 
@@ -72,8 +73,8 @@ def frame_rotation(
         known_loads: ``k x n``, the same loads as the user knows them.
         hint_motion: ``1 x n``, the recovered load of the hint sample (with ``hint``).
         hint: which side of the mirror the hint sample lies on.
-        rank_gap: the readings' (:func:`~sfmnet.linalg.factorisation.readings_rank_gap`), for
-            :func:`check_agreement`'s message.
+        rank_gap: the readings' (:func:`~sfmnet.linalg.factorisation.readings_rank_gap`), and circle_gap: the
+            same of the unknown-load rows about their mean, for :func:`check_agreement`'s message.
 
     Returns:
         ``R``, ``n x n`` orthogonal, so that ``M <- M R`` and ``S <- R^T S``.
@@ -93,7 +94,7 @@ def frame_rotation(
     u, _, vt = torch.linalg.svd(estimated_loads.T @ known_loads)
     rotation = u @ vt
     if span == n:
-        return check_agreement(estimated_loads @ rotation, known_loads, rotation, rank_gap)
+        return check_agreement(estimated_loads @ rotation, known_loads, rotation, rank_gap, circle_gap)
     if hint is None or hint_motion is None:
         raise SfmnetError(
             f"{span} known loads fix the {n}-axis frame only up to a mirror image: set "
@@ -120,7 +121,7 @@ def frame_rotation(
             f"leave free is ({normal})), or give {n} known loads spanning every axis"
         )
     rotation = rotation if agrees[0] else mirrored
-    return check_agreement(estimated_loads @ rotation, known_loads, rotation, rank_gap)
+    return check_agreement(estimated_loads @ rotation, known_loads, rotation, rank_gap, circle_gap)
 
 
 # Known loads set to 0.2 degrees sit well inside this, and so does a nonlinear real sensor's
@@ -129,13 +130,20 @@ MAX_DISAGREEMENT_DEG = 30.0
 
 
 def check_agreement(
-    placed: torch.Tensor, known_loads: torch.Tensor, rotation: torch.Tensor, rank_gap: float | None = None
+    placed: torch.Tensor,
+    known_loads: torch.Tensor,
+    rotation: torch.Tensor,
+    rank_gap: float | None = None,
+    circle_gap: float | None = None,
 ) -> torch.Tensor:
     """Return ``rotation`` unless a known load lies far from where the readings put it once the frame is fitted.
 
     Args:
         rank_gap: the readings' ``sigma_n / sigma_(n+1)``; under :data:`WARN_RANK_GAP` the readings barely span
             the load space, which places the known loads badly however right they are, so the message says so first.
+        circle_gap: the same of the unknown-load rows about their mean; under :data:`WARN_RANK_GAP` (where
+            ``rank_gap`` is not) they lie on one circle of orientations, through which the constant magnitude passes
+            many calibrations, and the message says that first.
 
     Raises:
         SfmnetError: the known loads contradict each other (their angles differ from the readings').
@@ -157,6 +165,13 @@ def check_agreement(
             f"place the known loads, so {where}: the orientations cover too little of the "
             f"{'circle' if n == 2 else 'sphere'} or the sensor is too noisy; turn the mass through more of it or load "
             "the sensor more heavily, then check the known loads' columns, signs and rows"
+        )
+    if circle_gap is not None and circle_gap < WARN_RANK_GAP and n == 3:
+        raise SfmnetError(
+            f"the rows of unknown load lie on one circle of orientations, or nearly (their readings about their mean "
+            f"barely span {n} dimensions: rank gap {circle_gap:.2f}, under {WARN_RANK_GAP:g}): the mass was turned about "
+            "one axis only, or through a small cap, and the constant magnitude fits a family of calibrations through "
+            f"such rows, so {where}; turn the mass about a second axis as well"
         )
     raise SfmnetError(
         f"{where}: the known loads contradict each other, or their rows' readings are too noisy to place them (far "

@@ -31,18 +31,18 @@ import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from statistics import NormalDist
-from typing import Protocol
 
 import numpy as np
 
 from sfmnet.errors import SfmnetError
+from sfmnet.preprocessing.chunked_rows import CHUNK_ROWS, Rows
+from sfmnet.preprocessing.row_repeats import RowRepeats, row_repeats
 
-CHUNK_ROWS = 65_536
 NOISE_SAMPLES = 100_000   # windows per channel the noise-floor quantile is taken over, at most
 PREVIEW_ROWS = 20_000     # rows kept for plotting the stream, at most
 PREVIEW_CHANNELS = 3
-# Mean squared step between consecutive rows over twice the variance: 1 for independent rows,
-# about (noise / spread)^2 for a stream. Above this the rows are taken as independent poses.
+# Mean squared step between consecutive rows (rows repeated whole left out) over twice the variance: 1 for
+# independent rows, about (noise / spread)^2 for a stream. Above this the rows are taken as independent poses.
 INDEPENDENT_RATIO = 0.5
 DEFAULT_WINDOW = {True: 0.5, False: 25}   # seconds with time, rows without
 DEFAULT_THRESHOLD = 3.0
@@ -53,14 +53,6 @@ MAX_GAP_FRACTION = 0.1    # more of the steps gaps than this: the time column is
 FULL_WINDOWS = 100        # the noise floor is taken over whole windows only when at least this many are sampled
 FLAT_VARIANCE = 1e-10     # a window is flat where its variance is under this fraction of the channel's span squared
 FLAT_LEVELS_SHARE = 0.5   # a channel's flat windows this much at its two commonest levels: clipped or stuck there
-
-
-class Rows(Protocol):
-    """Row-sliceable ``f x p`` (or ``f``) values: a numpy array, a memory map, or an adapter reading a file."""
-
-    shape: tuple[int, ...]
-
-    def __getitem__(self, rows: slice) -> np.ndarray: ...
 
 
 def intervals_of(rows: np.ndarray, intervals: np.ndarray) -> np.ndarray:
@@ -90,8 +82,8 @@ class StaticIntervals:
             ticks) starts a new stretch of the stream; empty without time.
         jitter_rows: rows whose time is not after the row before's, by at most ``JITTER_PERIODS``
             ticks (taken in file order).
-        repeated_rows: kept rows equal to the kept row before on every channel (0 when ``independent``).
-        channel_repeats: ``p`` int, kept rows equal to the kept row before on each channel alone.
+        repeats: how often the kept rows repeat the kept row before within their interval (every row's step when
+            ``independent``).
         noise_correlation: ``p``, how many times the variance of a mean over ``correlation_rows`` consecutive static
             rows exceeds what independent rows give (:func:`noise_correlation`: 1 for white noise; NaN where no
             interval holds two batches, a channel is constant, or ``independent``).
@@ -116,8 +108,7 @@ class StaticIntervals:
     period: float | None
     gap_rows: np.ndarray
     jitter_rows: int
-    repeated_rows: int
-    channel_repeats: np.ndarray
+    repeats: RowRepeats
     noise_correlation: np.ndarray
     correlation_dof: int
     correlation_rows: int
@@ -242,7 +233,7 @@ def find_static_intervals(
         rows = np.arange(f)
         return StaticIntervals(
             mask=np.ones(f, dtype=bool), intervals=np.stack([rows, rows + 1], axis=1), noise_floor=np.full(p, np.nan),
-            statistic=np.zeros(f, dtype=np.float32), independent=True, repeated_rows=0, channel_repeats=np.zeros(p, dtype=np.int64),
+            statistic=np.zeros(f, dtype=np.float32), independent=True, repeats=row_repeats(readings, None, chunk_rows),
             noise_correlation=np.full(p, np.nan), correlation_dof=0, correlation_rows=0,
             interval_times=None if time is None else np.stack([scan.time_at(rows), scan.time_at(rows)], axis=1),
             **common,
@@ -277,7 +268,6 @@ def find_static_intervals(
     mask = np.zeros(f, dtype=bool)
     for first, stop in intervals:
         mask[first:stop] = True
-    repeated, channel_repeats = repeats_within(readings, intervals, chunk_rows)
     batch_rows = correlation_batch_rows(intervals, window_rows)
     correlation, correlation_dof = noise_correlation(readings, intervals, batch_rows, chunk_rows)
     times = None
@@ -285,7 +275,7 @@ def find_static_intervals(
         times = np.stack([scan.time_at(intervals[:, 0]), scan.time_at(intervals[:, 1] - 1)], axis=1)
     return StaticIntervals(
         mask=mask, intervals=intervals, noise_floor=floor, statistic=statistic, independent=False,
-        repeated_rows=repeated, channel_repeats=channel_repeats,
+        repeats=row_repeats(readings, intervals, chunk_rows),
         noise_correlation=correlation, correlation_dof=correlation_dof, correlation_rows=batch_rows,
         interval_times=times, **common,
     )
@@ -317,12 +307,13 @@ class SerialScan:
 
 
 def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Callable[[int], str]) -> SerialScan:
-    """The serial ratio (consecutive steps against the spread), the period (the mean time step apart
-    from gaps), the gaps and jittered stamps (judged against the first chunk's tick), the smallest
+    """The serial ratio (consecutive steps, rows repeated whole left out, against the spread), the period (the mean
+    time step apart from gaps), the gaps and jittered stamps (judged against the first chunk's tick), the smallest
     nonzero step of each channel (its quantisation) and a thinned preview, in one pass."""
     f, p = readings.shape
     shift = np.asarray(readings[0:1], dtype=np.float64)[0]
     total, squares, steps = np.zeros(p), np.zeros(p), np.zeros(p)
+    repeated = 0  # steps of zero on every channel
     smallest = np.full(p, np.inf)
     tick, gaps, jitter, previous, previous_time = None, [], 0, None, None
     step_sum, step_count = 0.0, 0  # of the steps apart from gaps: the period, a coarse clock's repeats included
@@ -337,6 +328,7 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
         joined = block if previous is None else np.concatenate([previous, block])
         difference = np.abs(np.diff(joined, axis=0))
         steps += (difference**2).sum(axis=0)
+        repeated += int((difference == 0).all(axis=1).sum())
         nonzero = np.where(difference > 0, difference, np.inf)
         smallest = np.minimum(smallest, nonzero.min(axis=0, initial=np.inf))
         total += block.sum(axis=0)
@@ -384,7 +376,10 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
         previous = block[-1:]
     variance = squares / f - (total / f) ** 2
     spread = variance > 0
-    ratio = float(np.mean(steps[spread] / max(f - 1, 1) / (2 * variance[spread]))) if spread.any() else 0.0
+    # A row repeated whole is the logger polling faster than the sensor updates, not a step of the stream: counted,
+    # independent poses logged five times each would read as a stream five times slower.
+    moves = max(f - 1 - repeated, 1)
+    ratio = float(np.mean(steps[spread] / moves / (2 * variance[spread]))) if spread.any() else 0.0
     period = None if time is None else (step_sum / step_count if step_count else 1.0)
     if period is not None and not period > 0:
         raise not_increasing(period, "mean step apart from gaps")
@@ -496,19 +491,6 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
 def stretch_starts(gap_rows: np.ndarray) -> np.ndarray:
     """The first row of each stretch of the stream between gaps: 0, then ``gap_rows`` (int64)."""
     return np.concatenate([[0], gap_rows]).astype(np.int64)
-
-
-def repeats_within(readings: Rows, intervals: np.ndarray, chunk_rows: int) -> tuple[int, np.ndarray]:
-    """Rows equal to the row before in the same interval: on every channel, and ``p`` counts on each channel alone."""
-    p = readings.shape[1]
-    repeated, channel_repeats = 0, np.zeros(p, dtype=np.int64)
-    for first, stop in intervals.tolist():
-        for start in range(first, stop - 1, chunk_rows):
-            block = np.asarray(readings[start : min(stop, start + chunk_rows + 1)])
-            same = np.diff(block, axis=0) == 0
-            repeated += int(same.all(axis=1).sum())
-            channel_repeats += same.sum(axis=0)
-    return repeated, channel_repeats
 
 
 def correlation_batch_rows(intervals: np.ndarray, window_rows: int) -> int:

@@ -11,7 +11,9 @@ import torch
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording, empty_load_columns, first_magnitude_mismatch
 from sfmnet.preprocessing.revisited_poses import RevisitedPoses, hold_ids, holds_per_pose, revisited_poses
+from sfmnet.preprocessing.row_repeats import row_repeats
 from sfmnet.preprocessing.static_intervals import StaticIntervals
+from sfmnet.preprocessing.stuck_channels import stuck_readings
 from sfmnet.readers.static_rows import fitted_rows, static_settings
 from sfmnet.readers.table_file import Table, check_finite, read_table
 from sfmnet.errors import SfmnetError
@@ -192,6 +194,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             recordings={"rotation": recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
             static_intervals=detection, test=test,
             warnings=[*monotonic_channel_warnings(readings, channels, "the file's rows"), *unvisited],
+            row_repeats=row_repeats(readings) if detection is None else detection.repeats,
+            stuck_readings=[stuck for stuck in stuck_readings(readings) if keep[stuck.first : stuck.stop].any()],
             revisited_poses=revisits,
         )
 

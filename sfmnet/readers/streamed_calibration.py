@@ -15,6 +15,7 @@ from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
 from sfmnet.preprocessing.static_intervals import CHUNK_ROWS, StaticIntervals
+from sfmnet.preprocessing.stuck_channels import stuck_readings
 
 
 class StreamedCalibrationDataModule(RowFileDataModule):
@@ -108,6 +109,11 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         return CalibrationData(
             recordings={recording.recording: recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
             static_intervals=detection,
+            row_repeats=None if detection is None else detection.repeats,
+            stuck_readings=[
+                stuck for stuck in stuck_readings(MappedColumns(layout, recording.channel_index))
+                if recording.keep is None or recording.keep[stuck.first : stuck.stop].any()
+            ],
             warnings=monotonic_channel_warnings(
                 np.asarray(mapped_rows(layout, 0, first)[:, recording.channel_index]), channels,
                 "the file's rows" if first == recording.rows else f"the first {first} rows",

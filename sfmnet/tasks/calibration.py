@@ -28,6 +28,7 @@ from sfmnet.eval.goodness_of_fit import (
     correlated_noise_warning,
     repeated_rows_warning,
     revisited_pose_warning,
+    stuck_channel_warnings,
 )
 from sfmnet.eval.rotation_protocol import evaluate_sweeps
 from sfmnet.linalg.uncertainty import relative_matrix_std
@@ -79,9 +80,8 @@ class CalibrationTask(Task):
             diagnostics.update(counted)
             goodness = replace(goodness, metrics={**goodness.metrics, **counted}, outlier_rows=listed)
         detection = data.static_intervals
-        repeats = None if detection is None else repeated_rows_warning(
-            detection.repeated_rows, detection.channel_repeats, detection.rows_kept - detection.count
-        )
+        judged = "static rows" if detection is not None and not detection.independent else "rows"
+        repeats = None if data.row_repeats is None else repeated_rows_warning(data.row_repeats, judged)
         # Repeated rows are correlated noise too: one warning says so, the one that names the cause.
         worst = None if detection is None or repeats else detection.most_correlated_channel
         correlated = None if worst is None else correlated_noise_warning(
@@ -90,11 +90,14 @@ class CalibrationTask(Task):
         )
         revisits = data.revisited_poses
         drift = None if revisits is None else revisited_pose_warning(revisits, data.channels)
-        rows_dependent = [warning for warning in (repeats, correlated, drift) if warning]
-        warnings = [*data.warnings, *model.fit_warnings, *warnings, *rows_dependent]
+        stuck = stuck_channel_warnings(data.stuck_readings, data.channels)
+        # The readings' own faults first: they name a cause whose effects the fit's checks report after them.
+        readings_faults = [*stuck, *([repeats] if repeats else [])]
+        rows_dependent = [warning for warning in (correlated, drift) if warning]
+        warnings = [*data.warnings, *readings_faults, *model.fit_warnings, *warnings, *rows_dependent]
         # The error bars assume the model, independent rows and a fit that worked; a failed check or fit says they
         # cannot be believed.
-        trustworthy = goodness.trustworthy and not model.fit_failed and not rows_dependent
+        trustworthy = goodness.trustworthy and not model.fit_failed and not readings_faults and not rows_dependent
         calibration = model.to_calibration(
             data.channels,
             data.axes,

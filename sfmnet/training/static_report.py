@@ -36,7 +36,7 @@ def report_static_intervals(data: CalibrationData, run_dir: Path, logger: Logger
         "static/rows_kept": float(detection.rows_kept),
         "static/rows_total": float(len(detection.mask)),
         "static/time_gaps": float(len(detection.gap_rows)),
-        "static/repeated_rows": float(detection.repeated_rows),
+        "static/repeated_rows": float(detection.repeats.whole),
     }
     worst = detection.most_correlated_channel
     if worst is not None:
