@@ -42,6 +42,7 @@ import sfmnet
 from sfmnet.calibration import calibration_matrix
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import orthogonal_procrustes
+from sfmnet.simulators.simulation import circle_directions
 
 MAGNITUDE = 9.81
 
@@ -126,11 +127,7 @@ def known_session(
     if case.orientations == "known turntable" or case.orientations.startswith("known circle"):
         height = float(case.orientations.split()[-1]) if case.orientations.startswith("known circle") else 0.0
         axis = np.array([0.2, 0.1, 1.0]) / np.linalg.norm([0.2, 0.1, 1.0])
-        first = np.cross(axis, [1.0, 0.0, 0.0])
-        first /= np.linalg.norm(first)
-        angle = generator.uniform(0, 2 * np.pi, 600)
-        circle = np.cos(angle)[:, None] * first + np.sin(angle)[:, None] * np.cross(axis, first)
-        directions = math.sqrt(1 - height**2) * circle + height * axis
+        directions = circle_directions(generator.uniform(0, 2 * np.pi, 600), axis, height)
         known = np.repeat(KNOWN_DIRECTIONS, 20, axis=0)
     else:
         directions = generator.normal(size=(600, 3))

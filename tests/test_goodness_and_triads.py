@@ -20,6 +20,7 @@ from sfmnet.calibration import calibration_matrix
 from sfmnet.data.calibration_datamodule import FixedCalibrationDataModule
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
 from sfmnet.simulators.simulated_sensor import FingertipDataModule
+from sfmnet.simulators.simulation import circle_directions
 from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.errors import SfmnetError
 from sfmnet.eval.diagnostics import calibration_diagnostics
@@ -543,11 +544,7 @@ def known_pose_session(
     shape, offset = generator.normal(size=(3, 6)), 2 * generator.normal(size=6)
     if turntable:
         axis = np.array([0.2, 0.1, 1.0]) / np.linalg.norm([0.2, 0.1, 1.0])
-        first = np.cross(axis, [1.0, 0.0, 0.0])
-        first /= np.linalg.norm(first)
-        angle = generator.uniform(0, 2 * np.pi, 600)
-        circle = np.cos(angle)[:, None] * first + np.sin(angle)[:, None] * np.cross(axis, first)
-        directions = math.sqrt(1 - height**2) * circle + height * axis
+        directions = circle_directions(generator.uniform(0, 2 * np.pi, 600), axis, height)
     else:
         directions = generator.normal(size=(600, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from sfmnet.calibration import calibration_matrix
@@ -129,6 +130,16 @@ def circle_arc(law: str) -> tuple[float, float]:
         "band": (0.0, math.radians(BAND_HALF_WIDTH_DEG)),
         "cone": (math.pi / 2, math.radians(CONE_HALF_ANGLE_DEG)),
     }[law]
+
+
+def circle_directions(angles: np.ndarray, axis: np.ndarray, height: float = 0.0) -> np.ndarray:
+    """``k x 3`` unit directions on the circle ``a^T u = height`` about the unit ``axis`` ``a`` (0: a great circle, as
+    on a turntable), at ``angles`` (``k``, radians) from its point toward ``a x e_x``: a load turned about one axis only.
+    ``axis`` must not be along ``e_x``."""
+    first = np.cross(axis, [1.0, 0.0, 0.0])
+    first /= np.linalg.norm(first)
+    circle = np.cos(angles)[:, None] * first + np.sin(angles)[:, None] * np.cross(axis, first)
+    return math.sqrt(1 - height**2) * circle + height * axis
 
 
 def perturb_directions(directions: torch.Tensor, std_rad: float, generator: torch.Generator) -> torch.Tensor:
