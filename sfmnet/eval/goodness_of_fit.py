@@ -409,28 +409,29 @@ def repeated_rows_warning(repeats: RowRepeats, judged: str) -> str | None:
 
 
 def stuck_channel_warnings(stuck: list[StuckReading], channels: list[str]) -> list[str]:
-    """A warning for each channel stuck at one value or clipped at its range while the others moved
-    (:func:`~sfmnet.preprocessing.stuck_channels.stuck_readings`): those rows do not read the load.
+    """A warning for each channel stuck at one value or clipped at its range where the other channels say it reads
+    otherwise (:func:`~sfmnet.preprocessing.stuck_channels.stuck_readings`): those rows do not read the load.
 
     Args:
         stuck: the stuck readings over rows the fit uses; channels: the ``p`` names.
     """
     warnings = []
     for reading in stuck:
-        name, rows, moved = channels[reading.channel], f"{reading.rows:,}", f"{100 * reading.moved_share:.0f} %"
+        name, rows = channels[reading.channel], f"{reading.rows:,}"
+        miss = f"{reading.miss:.0f}x its scatter about that prediction elsewhere"
         if reading.kind == "run":
             warnings.append(
                 f"channel '{name}' reads exactly {reading.value:.6g} on {rows} consecutive rows (data rows "
-                f"{reading.first}-{reading.stop - 1}, 0-based) while other channels move by up to {moved} of their range, "
-                f"where elsewhere it repeats the row before on {100 * reading.chance:.1f} % of steps: it was stuck or "
-                "disconnected there, and those rows do not read the load; drop them (or the channel) and rerun"
+                f"{reading.first}-{reading.stop - 1}, 0-based), missing what the other channels say it reads there by "
+                f"{miss}: it was stuck or disconnected there, and those rows do not read the load; drop them (or the "
+                "channel) and rerun"
             )
         else:
             warnings.append(
                 f"channel '{name}' reads exactly {reading.value:.6g}, its {reading.kind} reading, on {rows} rows (data rows "
-                f"{reading.first} to {reading.stop - 1}, 0-based) while other channels move by up to {moved} of their range "
-                f"over them, where {round(reading.chance * reading.rows)} read the level next to it: it was clipped at its "
-                "range there, and those rows do not read the load; drop them (or use a lighter mass) and rerun"
+                f"{reading.first} to {reading.stop - 1}, 0-based), missing what the other channels say it reads there by "
+                f"{miss}: it was clipped at its range there, and those rows do not read the load; drop them (or use a "
+                "lighter mass) and rerun"
             )
     return warnings
 

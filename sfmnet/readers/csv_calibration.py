@@ -195,7 +195,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             static_intervals=detection, test=test,
             warnings=[*monotonic_channel_warnings(readings, channels, "the file's rows"), *unvisited],
             row_repeats=row_repeats(readings) if detection is None else detection.repeats,
-            stuck_readings=[stuck for stuck in stuck_readings(readings) if keep[stuck.first : stuck.stop].any()],
+            stuck_readings=[stuck for stuck in stuck_readings(readings, len(self.axes)) if keep[stuck.first : stuck.stop].any()],
             revisited_poses=revisits,
         )
 

@@ -111,7 +111,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             static_intervals=detection,
             row_repeats=None if detection is None else detection.repeats,
             stuck_readings=[
-                stuck for stuck in stuck_readings(MappedColumns(layout, recording.channel_index))
+                stuck for stuck in stuck_readings(MappedColumns(layout, recording.channel_index), recording.rank)
                 if recording.keep is None or recording.keep[stuck.first : stuck.stop].any()
             ],
             warnings=monotonic_channel_warnings(
