@@ -15,3 +15,13 @@ class Rows(Protocol):
     shape: tuple[int, ...]
 
     def __getitem__(self, rows: slice) -> np.ndarray: ...
+
+
+def read_rows(values: Rows, rows: np.ndarray, chunk_rows: int = CHUNK_ROWS) -> np.ndarray:
+    """``values`` (``f`` or ``f x p``) at ``rows`` (int, in any order), float64, reading only the chunks that hold them."""
+    out = np.empty((len(rows), *values.shape[1:]), dtype=np.float64)
+    for chunk in np.unique(rows // chunk_rows):
+        first = int(chunk) * chunk_rows
+        inside = rows // chunk_rows == chunk
+        out[inside] = np.asarray(values[first : first + chunk_rows], dtype=np.float64)[rows[inside] - first]
+    return out

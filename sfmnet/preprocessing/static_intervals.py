@@ -35,7 +35,7 @@ from statistics import NormalDist
 import numpy as np
 
 from sfmnet.errors import SfmnetError
-from sfmnet.preprocessing.chunked_rows import CHUNK_ROWS, Rows
+from sfmnet.preprocessing.chunked_rows import CHUNK_ROWS, Rows, read_rows
 from sfmnet.preprocessing.row_repeats import RowRepeats, row_repeats
 
 NOISE_SAMPLES = 100_000   # windows per channel the noise-floor quantile is taken over, at most
@@ -298,12 +298,7 @@ class SerialScan:
 
     def time_at(self, rows: np.ndarray, chunk_rows: int = CHUNK_ROWS) -> np.ndarray:
         """Seconds at ``rows`` (int), reading only the chunks that hold them."""
-        seconds = np.empty(len(rows), dtype=np.float64)
-        for chunk in np.unique(rows // chunk_rows):
-            first = int(chunk) * chunk_rows
-            inside = rows // chunk_rows == chunk
-            seconds[inside] = np.asarray(self.time[first : first + chunk_rows], dtype=np.float64)[rows[inside] - first]
-        return seconds
+        return read_rows(self.time, rows, chunk_rows)
 
 
 def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Callable[[int], str]) -> SerialScan:

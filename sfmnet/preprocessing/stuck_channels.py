@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sfmnet.preprocessing.chunked_rows import CHUNK_ROWS, Rows
+from sfmnet.preprocessing.chunked_rows import CHUNK_ROWS, Rows, read_rows
 
 MIN_STUCK_ROWS = 10
 STUCK_MISS = 10.0
@@ -150,12 +150,3 @@ def prediction_miss(readings: Rows, gram: np.ndarray, channel: int, rows: np.nda
     miss = values[:, channel] - design[:, others] @ beta
     return float(np.sqrt(np.mean(miss**2) / (residual_squares / dof)))
 
-
-def read_rows(readings: Rows, rows: np.ndarray, chunk_rows: int) -> np.ndarray:
-    """``len(rows) x p`` float64: the readings at ``rows`` (sorted indices), reading only the chunks that hold them."""
-    parts = []
-    for chunk in np.unique(rows // chunk_rows):
-        first = int(chunk) * chunk_rows
-        inside = rows[rows // chunk_rows == chunk]
-        parts.append(np.asarray(readings[first : first + chunk_rows], dtype=np.float64)[inside - first])
-    return np.concatenate(parts)
