@@ -76,7 +76,7 @@ def test_coarse_readings_that_repeat_within_holds_are_not_stuck():
     readings = recording.readings.numpy()
     rng = np.random.default_rng(0)
     counts = np.round(readings * 1000 / np.abs(readings).max() + 50 + 0.3 * rng.normal(size=readings.shape))
-    longest, _, _, _ = scan_channels(counts, 65_536)
+    longest = scan_channels(counts, 65_536).longest
     assert (longest[:, 1] - longest[:, 0]).max() >= 30
     assert stuck_readings(counts, 3) == []
     first, _ = recording.intervals[5].tolist()

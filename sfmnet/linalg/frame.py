@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -60,7 +61,7 @@ def frame_rotation(
     hint_motion: torch.Tensor | None = None,
     hint: MirrorHint | None = None,
     rank_gap: float | None = None,
-    circle_gap: float | None = None,
+    circle_gap: Callable[[], float | None] | None = None,
 ) -> torch.Tensor:
     """The orthogonal transform ``R`` that takes recovered loads into the frame of the known loads.
 
@@ -74,7 +75,8 @@ def frame_rotation(
         hint_motion: ``1 x n``, the recovered load of the hint sample (with ``hint``).
         hint: which side of the mirror the hint sample lies on.
         rank_gap: the readings' (:func:`~sfmnet.linalg.factorisation.readings_rank_gap`), and circle_gap: the
-            same of the unknown-load rows about their mean, for :func:`check_agreement`'s message.
+            same of the unknown-load rows about their mean, computed only where it is asked for, for
+            :func:`check_agreement`'s message.
 
     Returns:
         ``R``, ``n x n`` orthogonal, so that ``M <- M R`` and ``S <- R^T S``.
@@ -134,14 +136,14 @@ def check_agreement(
     known_loads: torch.Tensor,
     rotation: torch.Tensor,
     rank_gap: float | None = None,
-    circle_gap: float | None = None,
+    circle_gap: Callable[[], float | None] | None = None,
 ) -> torch.Tensor:
     """Return ``rotation`` unless a known load lies far from where the readings put it once the frame is fitted.
 
     Args:
         rank_gap: the readings' ``sigma_n / sigma_(n+1)``; under :data:`WARN_RANK_GAP` the readings barely span
             the load space, which places the known loads badly however right they are, so the message says so first.
-        circle_gap: the same of the unknown-load rows about their mean; under :data:`WARN_RANK_GAP` (where
+        circle_gap: computes the same of the unknown-load rows about their mean; under :data:`WARN_RANK_GAP` (where
             ``rank_gap`` is not) they lie on one circle of orientations, through which the constant magnitude passes
             many calibrations, and the message says that first.
 
@@ -166,10 +168,11 @@ def check_agreement(
             f"{'circle' if n == 2 else 'sphere'} or the sensor is too noisy; turn the mass through more of it or load "
             "the sensor more heavily, then check the known loads' columns, signs and rows"
         )
-    if circle_gap is not None and circle_gap < WARN_RANK_GAP and n == 3:
+    unknown_gap = circle_gap() if circle_gap is not None and n == 3 else None
+    if unknown_gap is not None and unknown_gap < WARN_RANK_GAP:
         raise SfmnetError(
             f"the rows of unknown load lie on one circle of orientations, or nearly (their readings about their mean "
-            f"barely span {n} dimensions: rank gap {circle_gap:.2f}, under {WARN_RANK_GAP:g}): the mass was turned about "
+            f"barely span {n} dimensions: rank gap {unknown_gap:.2f}, under {WARN_RANK_GAP:g}): the mass was turned about "
             "one axis only, or through a small cap, and the constant magnitude fits a family of calibrations through "
             f"such rows, so {where}; turn the mass about a second axis as well"
         )

@@ -1069,10 +1069,11 @@ class ShapeFromMotion(LinearCalibrator):
                     f"mirror_hint.sample is {hint.sample} but there are {len(unknown_rows)} unknown-orientation rows"
                 )
             hint_motion = self.motion_of(recording.readings[unknown_rows[hint.sample]][None])
-        # About their mean, the unknown rows' readings that lie on one circle of orientations span n - 1 dimensions.
-        unknown_readings = recording.readings[~known]
-        unknown_readings = unknown_readings - unknown_readings.mean(dim=0)
-        circle_gap = readings_rank_gap(torch.linalg.svdvals(unknown_readings), recording.rank)
+        def circle_gap() -> float | None:
+            # About their mean, the unknown rows' readings that lie on one circle of orientations span n - 1 dimensions.
+            unknown_readings = recording.readings[~known]
+            return readings_rank_gap(torch.linalg.svdvals(unknown_readings - unknown_readings.mean(dim=0)), recording.rank)
+
         rotation = frame_rotation(
             self.motion_of(recording.readings[known]), recording.loads[known], hint_motion, hint,
             readings_rank_gap(self.singular_values, recording.rank), circle_gap,

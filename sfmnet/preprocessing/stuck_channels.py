@@ -19,6 +19,7 @@ With as many channels as axes no channel is predicted by the others, and nothing
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -63,31 +64,50 @@ def stuck_readings(readings: Rows, rank: int, chunk_rows: int = CHUNK_ROWS) -> l
     f, p = readings.shape
     if p <= rank or f <= p + MIN_STUCK_ROWS:
         return []
-    longest, low, high, gram = scan_channels(readings, chunk_rows)
-    candidates: list[tuple[int, str, float, np.ndarray]] = []
-    for channel in range(p):
-        first, stop = (int(row) for row in longest[channel])
-        if stop - first >= MIN_STUCK_ROWS:
-            value = float(np.asarray(readings[first : first + 1], dtype=np.float64)[0, channel])
-            candidates.append((channel, "run", value, np.arange(first, stop)))
-    for channel, kind, value, rows in range_ends(readings, low, high, chunk_rows):
-        candidates.append((channel, kind, value, rows))
+    scan = scan_channels(readings, chunk_rows)
+    candidates = [
+        (channel, "run", float(scan.longest_value[channel]), np.arange(first, stop))
+        for channel, (first, stop) in enumerate(scan.longest.tolist())
+        if stop - first >= MIN_STUCK_ROWS
+    ]
+    candidates += range_ends(readings, scan.low, scan.high, chunk_rows)
     found: dict[tuple[int, float], StuckReading] = {}
     for channel, kind, value, rows in candidates:
-        miss = prediction_miss(readings, gram, channel, rows, chunk_rows)
-        if miss >= STUCK_MISS and (channel, value) not in found:
+        if (channel, value) in found:
+            continue
+        miss = prediction_miss(readings, scan, channel, rows, chunk_rows)
+        if miss >= STUCK_MISS:
             found[channel, value] = StuckReading(channel, value, len(rows), int(rows[0]), int(rows[-1]) + 1, kind, miss)
     return list(found.values())
 
 
-def scan_channels(readings: Rows, chunk_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One pass: ``p x 2`` int64, each channel's longest run of one value, ``[first, stop)``; ``p`` each, its smallest
-    and largest reading; ``(p + 1) x (p + 1)``, the Gram matrix of the rows with a 1 appended, about the first row."""
+class ChannelScan(NamedTuple):
+    """What one pass over the readings gives :func:`stuck_readings`.
+
+    Attributes:
+        longest: ``p x 2`` int64, each channel's longest run of one value, ``[first, stop)``; longest_value: ``p``,
+            that value.
+        low, high: ``p`` each, each channel's smallest and largest reading.
+        gram: ``(p + 1) x (p + 1)``, the Gram matrix of the rows less ``origin`` with a 1 appended.
+        origin: ``p``, the first row.
+    """
+
+    longest: np.ndarray
+    longest_value: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    gram: np.ndarray
+    origin: np.ndarray
+
+
+def scan_channels(readings: Rows, chunk_rows: int) -> ChannelScan:
+    """One pass over the readings, ``chunk_rows`` rows at a time: :class:`ChannelScan`."""
     f, p = readings.shape
     longest = np.tile(np.array([0, min(f, 1)], dtype=np.int64), (p, 1))
     low, high = np.full(p, np.inf), np.full(p, -np.inf)
     gram = np.zeros((p + 1, p + 1))
     origin = np.asarray(readings[0:1], dtype=np.float64)[0]
+    longest_value = origin.copy()
     run_first = np.zeros(p, dtype=np.int64)  # where each channel's current run began
     for start in range(0, f, chunk_rows):
         block = np.asarray(readings[start : start + chunk_rows + 1], dtype=np.float64)
@@ -105,8 +125,10 @@ def scan_channels(readings: Rows, chunk_rows: int) -> tuple[np.ndarray, np.ndarr
             best = int(np.argmax(ends - starts))
             if ends[best] - starts[best] > longest[channel, 1] - longest[channel, 0]:
                 longest[channel] = starts[best], ends[best]
+                # A run begun in an earlier block holds the value this one starts with.
+                longest_value[channel] = block[max(starts[best] - start, 0), channel]
             run_first[channel] = starts[-1]
-    return longest, low, high, gram
+    return ChannelScan(longest, longest_value, low, high, gram, origin)
 
 
 def range_ends(
@@ -120,8 +142,9 @@ def range_ends(
     for start in range(0, f, chunk_rows):
         block = np.asarray(readings[start : start + chunk_rows], dtype=np.float64)
         for kind, end in ends.items():
-            for channel in np.flatnonzero((block == end).sum(axis=0) > 0):
-                rows[channel, kind].append(start + np.flatnonzero(block[:, channel] == end[channel]))
+            at_end = block == end
+            for channel in np.flatnonzero(at_end.any(axis=0)):
+                rows[channel, kind].append(start + np.flatnonzero(at_end[:, channel]))
     return [
         (channel, kind, float(ends[kind][channel]), np.concatenate(found))
         for (channel, kind), found in rows.items()
@@ -129,15 +152,14 @@ def range_ends(
     ]
 
 
-def prediction_miss(readings: Rows, gram: np.ndarray, channel: int, rows: np.ndarray, chunk_rows: int) -> float:
+def prediction_miss(readings: Rows, scan: ChannelScan, channel: int, rows: np.ndarray, chunk_rows: int) -> float:
     """The RMS of channel ``channel`` less its least-squares prediction from the other channels over ``rows``, the
-    prediction fitted on every other row (``gram``, :func:`scan_channels`, less theirs), in standard deviations of its
-    residuals there; 0 where the other channels do not predict it."""
+    prediction fitted on every other row (``scan.gram`` less theirs), in standard deviations of its residuals there;
+    0 where the other channels do not predict it."""
     f, p = readings.shape
-    origin = np.asarray(readings[0:1], dtype=np.float64)[0]
-    values = read_rows(readings, rows, chunk_rows) - origin
+    values = read_rows(readings, rows, chunk_rows) - scan.origin
     design = np.concatenate([values, np.ones((len(values), 1))], axis=1)
-    rest = gram - design.T @ design
+    rest = scan.gram - design.T @ design
     others = np.array([k for k in range(p + 1) if k != channel])
     try:
         beta = np.linalg.solve(rest[np.ix_(others, others)], rest[others, channel])
