@@ -15,7 +15,9 @@ defect:
 - ``drift``: each channel's offset drifts 1 % of its full scale over the recording;
 - ``nonlinear``: each channel 0.5 % of its full scale from linear (a square law);
 - ``shuffled``: the sweep's rows given in random order (recording order then says nothing);
-- ``spread10``: each channel's noise drawn log-uniform over a factor 10 (RMS kept), 8 channels;
+- ``spread10``: each channel's noise drawn log-uniform over a factor 10 (RMS kept), 8 channels (``-p5``, ``-p4``: 5 or 4);
+- ``gains``: three of the 8 channels amplified 10x (they carry most of the load), every channel's noise 0.5 % of its
+  span (an amplifier's noise grows with its gain);
 - ``slip``: the last 30 % of the rows 2 % light;
 - ``quantised``: held at 30 poses x 100 rows, read in counts 10x the noise, 3 channels;
 - ``mass``: the mass 1 % heavier than the magnitude given (the known loads its true ones).
@@ -65,6 +67,11 @@ CASES = (
     Case("uniform-nonlinear", "uniform", 8, "nonlinear"),
     Case("spread10", "uniform", 8, "spread10"),
     Case("spread10-slip", "uniform", 8, "spread10 slip"),
+    Case("spread10-p5", "uniform", 5, "spread10"),
+    Case("spread10-p5-slip", "uniform", 5, "spread10 slip"),
+    Case("spread10-p4", "uniform", 4, "spread10"),
+    Case("gains", "uniform", 8, "gains"),
+    Case("gains-slip", "uniform", 8, "gains slip"),
     Case("poses", "poses", 3, ""),
     Case("poses-quantised", "poses", 3, "quantised"),
     Case("short-sweep", "short sweep", 6, ""),
@@ -83,6 +90,8 @@ def session(case: Case, seed: int) -> tuple[np.ndarray, np.ndarray | None, torch
     """One session's readings (``f x p``), known loads (``f x 3``, NaN where unknown; None without) and true ``C``."""
     generator = np.random.default_rng(seed)
     shape, offset = generator.normal(size=(3, case.channels)), generator.normal(size=case.channels) * 5
+    if "gains" in case.defect:
+        shape[:, :3] *= 10
     if case.orientations.startswith("known"):
         return known_session(case, generator, shape, offset)
     if case.orientations in ("sweep", "short sweep"):
@@ -110,6 +119,8 @@ def session(case: Case, seed: int) -> tuple[np.ndarray, np.ndarray | None, torch
     if "spread10" in case.defect:
         factors = np.exp(generator.uniform(0, math.log(10), size=case.channels))
         noise *= factors / np.sqrt(np.mean(factors**2))
+    if "gains" in case.defect:
+        noise = 0.005 * scale
     readings += generator.normal(size=readings.shape) * noise
     if "quantised" in case.defect:
         step = 10 * noise.mean()
@@ -172,7 +183,7 @@ def main() -> None:
             ratios.append(bars_ratio(calibration, truth, loads is not None))
         silent = sum(t and r > 2 for t, r in zip(trusted, ratios))
         # Shuffling alone is no defect; one circle of orientations is one, though the case names none.
-        clean = case.defect in ("", "shuffled", "spread10") and case.name not in ("turntable", "circle30", "circle45")
+        clean = case.defect in ("", "shuffled", "spread10", "gains") and case.name not in ("turntable", "circle30", "circle45")
         false_alarms = sum(not t for t in trusted) + refused if clean else 0
         span = f"{min(ratios):.2f}-{max(ratios):.2f}" if ratios else "-"
         print(

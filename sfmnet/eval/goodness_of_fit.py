@@ -25,7 +25,14 @@ import numpy as np
 import torch
 
 from sfmnet.data.rows import IntervalSums
-from sfmnet.linalg.channel_noise import channel_noise_variances, residual_spread
+from sfmnet.linalg.channel_noise import (
+    ChannelNoise,
+    channel_noise,
+    equal_channel_noise,
+    RowSpread,
+    residual_spread,
+    within_pose_channel_noise,
+)
 from sfmnet.linalg.chi_square import chi_square_quantile, chi_square_z, robust_noise_variance
 from sfmnet.linalg.directions import neighbour_order
 from sfmnet.linalg.factorisation import MIN_UNKNOWN_ROW_CENTRED_COVERAGE, MIN_UNKNOWN_ROW_COVERAGE
@@ -322,6 +329,7 @@ def serial_misfit(
     parameters: float,
     design: torch.Tensor,
     directions: torch.Tensor | None = None,
+    spread: RowSpread | None = None,
 ) -> SerialMisfit | None:
     """How far means over consecutive rows miss the model, beyond what independent noise explains (method §5, "Rows
     swept without holds"), the rows in recording order or, with ``directions``, in an order of neighbouring
@@ -341,21 +349,79 @@ def serial_misfit(
         residuals: ``f x p`` in recording order (raw units); dof: ``f`` (long), each row's residual degrees of freedom;
         noise: ``sigma`` (raw units); parameters: the global parameters fitted to the rows (:func:`pose_misfit_z`);
         design: ``f x q``, each row's fitted load and, with offsets, a 1 (:func:`batch_share`); directions: ``f x d``
-        (``d`` = 2 or 3), each row's unit direction, or None for recording order.
+        (``d`` = 2 or 3), each row's unit direction, or None for recording order; spread: each row's ``mu_j`` and
+        ``nu_j`` where channels differ in noise (:func:`~sfmnet.linalg.channel_noise.residual_spread`): a batch's mean square
+        is then ``(mu_B / nu_B) chi2(nu_B)``, ``mu_B`` and ``nu_B`` its rows' means (rows of one batch read the noise
+        alike, being near in time or direction), and is scaled to ``chi2(nu_B)``, the parameters' share of its degrees
+        of freedom by the batches' mean scale; None: ``k_j`` both.
     """
     worst: SerialMisfit | None = None
+    if spread is not None:
+        # mu_j is in units of the channels' mean variance, the noise in units of the rows' mean square per degree of
+        # freedom: the same rows' means put them on one scale.
+        spread = spread._replace(mean=spread.mean * float(dof.sum()) / float(spread.mean.sum()))
     for rows in SERIAL_BATCH_ROWS:
         batches = len(residuals) // rows
         if batches < MIN_SERIAL_BATCHES:
             break
         order = torch.arange(len(residuals)) if directions is None else neighbour_order(directions, rows)
         used = order[: batches * rows]
-        means = pose_means(residuals[used], torch.arange(len(used)) // rows, dof[used])
+        batch = torch.arange(len(used)) // rows
+        means = pose_means(residuals[used], batch, dof[used])
         fitted = parameters * batch_share(design[used], rows)
+        if spread is not None:
+            mean, freedom = group_means(torch.stack([spread.mean[used], spread.dof[used]], dim=1), batch)[0].unbind(dim=1)
+            # Each batch scaled to chi2(nu_B); the parameters' share of the degrees of freedom scales alike.
+            scale = freedom / mean
+            means = PoseMeans(means.squares * scale, freedom)
+            fitted *= float(scale.mean())
         found = SerialMisfit(rows, pose_misfit_ratio(means, noise), pose_misfit_z(means, noise, fitted))
         if math.isfinite(found.z) and (worst is None or found.z > worst.z):
             worst = found
     return worst
+
+
+def magnitude_misfit(
+    loads: torch.Tensor, magnitude: float, matrix: torch.Tensor, noise: ChannelNoise
+) -> SerialMisfit | None:
+    """How far means of the rows' squared load magnitudes over consecutive rows differ, beyond what independent noise
+    explains (method §5, "The magnitudes in recording order").
+
+    For a constant mass every row's ``|m_j|^2 - F^2`` has the same mean, ``tr(C Sigma C^T)``, whatever its direction
+    (noise biases ``|m_j|`` itself by an amount that depends on it), and a standard deviation of about ``2 F s_j``
+    (:func:`constraint_noise_ratio`). The standardised ``t_j = (|m_j|^2 - F^2) / (2 F s_j)``, in recording order, are cut
+    into batches as :func:`serial_misfit` cuts residuals and judged against the noise of successive rows,
+    ``sum (t_j+1 - t_j)^2 / (2 (f - 1))``, which neither a step nor a slow trend moves, nor how well the channels' noise
+    is known (``s_j`` only weighs the rows): a mass that slipped or was changed partway, or a gain that drifted, shows
+    where the magnitudes' scatter alone cannot tell it from noise in the load space. The global parameters the means
+    see are the metric's ``n (n + 1) / 2``, entering row ``j`` through ``u_j u_j^T``.
+
+    Args:
+        loads: ``f x n``, the unknown rows' least-squares loads in recording order; magnitude: ``F``; matrix: ``C``,
+            ``n x p``; noise: the channels' noise (:func:`constraint_noise_ratio`).
+    """
+    norms = loads.norm(dim=1)
+    directions = loads / norms[:, None]
+    spread = (directions @ matrix).square() @ noise.variances
+    standardised = (norms.square() - magnitude**2) / (2 * magnitude * spread.sqrt())
+    successive = float((standardised[1:] - standardised[:-1]).square().mean()) / 2 if len(loads) > 1 else math.nan
+    if not successive > 0:
+        return None
+    upper = torch.triu_indices(loads.shape[1], loads.shape[1])
+    metric = directions[:, upper[0]] * directions[:, upper[1]]
+    ones = torch.ones(len(loads), dtype=torch.long)
+    return serial_misfit(standardised[:, None], ones, math.sqrt(successive), float(metric.shape[1]), metric)
+
+
+def magnitude_misfit_warning(misfit: SerialMisfit) -> str:
+    """The warning for magnitudes that differ from batch to batch beyond chance (:func:`magnitude_misfit`)."""
+    return (
+        f"the load's magnitude changes along the recording: means of the load magnitudes over {misfit.batch_rows} "
+        f"consecutive rows differ {misfit.ratio:.2f}x as much as independent noise explains (z = {misfit.z:.1f}): the "
+        "mass slipped or was changed partway, the sensor's gain drifted, or (where the mass turns slowly) the sensor is "
+        "not linear; the calibration is biased and its error bars too small: check the mounting and record again, or "
+        "calibrate the parts before and after the change apart"
+    )
 
 
 def batch_misfit_warning(misfit: SerialMisfit, by_direction: bool) -> str:
@@ -487,40 +553,43 @@ def revisited_pose_warning(revisits: RevisitedPoses, channels: list[str]) -> str
     )
 
 
+class ConstraintRatio(NamedTuple):
+    """The magnitudes' check (:func:`constraint_noise_ratio`): ``ratio``, the standardised magnitudes' RMS, and
+    ``square_sd``, how far ``ratio^2`` may be off for the channels' noise being known only so well."""
+
+    ratio: float
+    square_sd: float
+
+
 def constraint_noise_ratio(
-    loads: torch.Tensor, off_space: torch.Tensor, matrix: torch.Tensor, magnitude: float, variances: torch.Tensor | None = None
-) -> float:
+    loads: torch.Tensor, matrix: torch.Tensor, magnitude: float, noise: ChannelNoise
+) -> ConstraintRatio:
     """How far the rows' load magnitudes are from ``F`` against what the noise off the load space predicts.
 
     With more channels than axes (``p > n``) a linear sensor's readings off the row space of ``S``
-    are pure noise, whatever the loads: ``sigma^2 = |Z (I - P)|^2 / ((f - n) (p - n))``. Each row's
-    least-squares load ``m_j = C (z_j - o)`` then has ``|m_j| - F ~ N(0, u_j C Sigma C^T u_j^T)``
-    (``u_j`` its direction, ``Sigma = sigma^2 I``, or ``diag(variances)`` for channels of unequal noise)
-    if the mass's magnitude is constant and the sensor linear. The RMS of the standardised magnitudes
-    is ~1 then; a slipped mass, a load that is not the calibration mass or a nonlinear sensor raise it,
-    even with no repeated pose to compare against.
+    are pure noise, whatever the loads. Each row's least-squares load ``m_j = C (z_j - o)`` then has
+    ``|m_j| - F ~ N(0, s_j^2)``, ``s_j^2 = u_j C Sigma C^T u_j^T = sum_k v_k (C^T u_j)_k^2`` (``u_j`` its direction,
+    ``Sigma = diag(v)`` the channels' noise as the readings off the load space tell it), if the mass's magnitude is
+    constant and the sensor linear. The mean square of the standardised magnitudes is ~1 then; a slipped mass, a load
+    that is not the calibration mass or a nonlinear sensor raise it, even with no repeated pose to compare against.
+    The noise in the load space is known only as well as ``v``'s combination ``g^T v`` that moves it,
+    ``g = d ratio^2 / d v = -mean_j t_j (C^T u_j)^2 / s_j^2`` (``t_j`` the row's standardised square): its standard
+    deviation is ``square_sd``, large where the channels that carry the load are the ones the readings off it see least.
 
     Args:
-        loads: ``f x n`` least-squares loads of the unknown-load rows; off_space: ``f x p`` their
-            readings' component off the row space of ``S`` (raw units); matrix: ``C``, ``n x p``;
-            variances: ``p``, each channel's noise variance
-            (:func:`~sfmnet.linalg.channel_noise.channel_noise_variances`); None: equal, from ``off_space``.
+        loads: ``f x n`` least-squares loads of the unknown-load rows; matrix: ``C``, ``n x p``;
+            noise: the channels' noise (:func:`~sfmnet.linalg.channel_noise.channel_noise`, or
+            :func:`~sfmnet.linalg.channel_noise.equal_channel_noise` where that cannot tell them apart).
     """
-    f, p = off_space.shape
-    n = loads.shape[1]
-    dof = (f - n) * (p - n)
-    if dof <= 0:
-        return math.nan
-    if variances is None:
-        variances = torch.full((p,), float(off_space.square().sum()) / dof, dtype=matrix.dtype)
     directions = loads / loads.norm(dim=1, keepdim=True)
-    spread = (directions @ matrix * variances.sqrt()).norm(dim=1)
-    return float(((loads.norm(dim=1) - magnitude) / spread).pow(2).mean().sqrt())
+    weights = (directions @ matrix).square()
+    spread = weights @ noise.variances
+    standardised = (loads.norm(dim=1) - magnitude).square() / spread
+    gradient = -(standardised / spread) @ weights / len(loads)
+    return ConstraintRatio(float(standardised.mean().sqrt()), noise.combination_sd(gradient))
 
 
-def outlying_rows(
-    residuals: torch.Tensor, dof: torch.Tensor, spread: tuple[torch.Tensor, torch.Tensor] | None = None
-) -> tuple[torch.Tensor, float]:
+def outlying_rows(residuals: torch.Tensor, dof: torch.Tensor, spread: RowSpread | None = None) -> tuple[torch.Tensor, float]:
     """Rows whose squared residual is beyond the chi-square tail, the noise estimated robustly.
 
     ``|r_j|^2 / sigma^2 ~ chi2(k_j)`` for a row that fits, ``k_j`` its residual's degrees of
@@ -529,11 +598,11 @@ def outlying_rows(
     ``|r_j|^2 / median(chi2(k_j))``, which a minority of bad rows barely moves. Channels of unequal
     noise spread ``|r_j|^2 / sigma^2`` as ``(mu_j / nu_j) chi2(nu_j)`` instead, ``sigma^2`` their mean
     variance (``spread``, :func:`~sfmnet.linalg.channel_noise.residual_spread`): a longer tail, and a
-    mean that depends on where the row reads.
+    mean that depends on where the row reads; the tail is then judged at the largest ``mu_j`` the readings allow.
 
     Args:
         residuals: ``f x p`` (raw units); dof: ``f`` (long; rows with none left are never outliers);
-            spread: ``mu``, ``nu`` (``f`` each); None: ``k_j`` both, channels of equal noise.
+            spread: each row's spread; None: ``k_j`` both, channels of equal noise.
 
     Returns:
         The boolean ``f`` mask of outliers and the robust noise (raw units).
@@ -542,13 +611,12 @@ def outlying_rows(
     free = dof > 0
     if not bool(free.any()):
         return torch.zeros_like(free), math.nan
-    mean, dof = (dof, dof) if spread is None else spread
+    mean, upper, dof = (dof, dof, dof) if spread is None else (spread.mean, spread.upper, spread.dof)
     dof = dof[free].to(squares.dtype)
-    squares = squares[free] * dof / mean[free]
-    variance = robust_noise_variance(squares, dof)
+    variance = robust_noise_variance(squares[free] * dof / mean[free], dof)
     limits = chi_square_quantile(dof, OUTLIER_Z)
     outliers = torch.zeros_like(free)
-    outliers[free] = squares > limits * variance
+    outliers[free] = squares[free] * dof / upper[free] > limits * variance
     return outliers, math.sqrt(max(variance, 0.0))
 
 
@@ -717,8 +785,9 @@ def goodness_of_fit(
         matrix: ``C``, ``n x p``.
         load_unit: for the messages.
         constraint: with more channels than axes and one constant magnitude: the unknown rows'
-            least-squares loads, their readings off the load space and ``F``
-            (:func:`constraint_noise_ratio`).
+            least-squares loads, their readings off the load space (the channels' noise,
+            :func:`~sfmnet.linalg.channel_noise.channel_noise`) and ``F`` (:func:`constraint_noise_ratio`,
+            :func:`magnitude_misfit`).
         valley: with offsets and one constant magnitude, the likelihood along the osculating family
             (:func:`~sfmnet.linalg.osculating_valley.valley_scan`) and the RMS load error (a fraction of
             ``F``) the error bars predict (:func:`~sfmnet.linalg.uncertainty.load_error_rms`).
@@ -759,8 +828,10 @@ def goodness_of_fit(
         ``goodness/known_load_rms``, ``goodness/known_load_ratio``, ``goodness/known_load_pct``
         (the RMS as a percentage of the known loads' own RMS), ``goodness/known_load_scale_pct`` and
         ``goodness/known_load_scale_z`` (:func:`known_load_scale`) (with known loads),
-        ``goodness/constraint_noise_ratio`` and ``goodness/channel_noise_max_ratio`` (the noisiest channel's noise over
-        the channels' RMS, :func:`~sfmnet.linalg.channel_noise.channel_noise_variances`) (with ``constraint``), ``goodness/valley_load_change``
+        ``goodness/constraint_noise_ratio``, ``goodness/constraint_noise_square_sd`` (:class:`ConstraintRatio`),
+        ``goodness/magnitude_misfit_ratio``, ``goodness/magnitude_misfit_z`` and ``goodness/magnitude_batch_rows``
+        (:func:`magnitude_misfit`) and ``goodness/channel_noise_max_ratio`` (the noisiest channel's noise over the
+        channels' RMS, :func:`~sfmnet.linalg.channel_noise.channel_noise`) (with ``constraint``), ``goodness/valley_load_change``
         (the largest RMS load change, a fraction of ``F``, among calibrations along the valley as likely
         as the fit), ``goodness/valley_bars_ratio`` (that change over the RMS load error the bars
         predict) and ``goodness/valley_better_nats`` (how much more likely the valley's best is) (with ``valley``),
@@ -776,11 +847,18 @@ def goodness_of_fit(
     metrics: dict[str, float] = {}
     warnings: list[str] = []
     dof = torch.where(known, p, p - direction_dims + 1)
-    variances = channel_noise_variances(constraint[1], matrix) if constraint is not None else None
+    channels = None
+    if constraint is not None:
+        # Rows held still measure every channel's noise whole; without them (or with only a stream's sums) the
+        # readings off the load space tell it as far as (H1) can.
+        if groups is not None and pose_sums is None:
+            channels = within_pose_channel_noise(readings, groups)
+        channels = channels or channel_noise(constraint[1], matrix)
     spread = None
-    if variances is not None:
+    if channels is not None:
+        variances = channels.variances
         metrics["goodness/channel_noise_max_ratio"] = float(variances.max() / variances.mean()) ** 0.5
-        spread = residual_spread(variances, matrix, known, constraint[0] / constraint[0].norm(dim=1, keepdim=True))
+        spread = residual_spread(channels, matrix, known, constraint[0] / constraint[0].norm(dim=1, keepdim=True))
     outliers, robust_noise = outlying_rows(residuals, dof, spread)
     if robust:
         fit_noise = robust_noise
@@ -826,8 +904,11 @@ def goodness_of_fit(
         orders: dict[str, torch.Tensor | None] = {"serial": None}
         if serial_directions is not None:
             orders["neighbour"] = serial_directions[kept]
+        kept_spread = None if spread is None else spread.rows(kept)
         for order, directions in orders.items():
-            misfit = serial_misfit(residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept], directions)
+            misfit = serial_misfit(
+                residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept], directions, kept_spread
+            )
             if misfit is None:
                 continue
             metrics.update(
@@ -839,16 +920,34 @@ def goodness_of_fit(
     if constraint is not None:
         # Outlying rows have their own check; here a few bumps would read as a mass that is not constant.
         kept = ~outliers[~known]
-        ratio = constraint_noise_ratio(constraint[0][kept], constraint[1][kept], matrix, constraint[2], variances)
-        metrics["goodness/constraint_noise_ratio"] = ratio
-        # ratio^2 is a chi-square mean over f rows: 1 +- sqrt(2 / f) for a model that fits.
-        significant = ratio**2 > 1 + 4 * math.sqrt(2 / int(kept.sum()))
-        if ratio > MAX_CONSTRAINT_RATIO and significant and not robust:
-            warnings.append(
-                f"the rows' load magnitudes scatter {ratio:.2f}x more about the calibration magnitude than the noise "
-                "off the load space explains: the load is not one constant magnitude (a slipped or wrong mass, rows "
-                "in motion) or the sensor is not linear"
-            )
+        noise = channels or equal_channel_noise(constraint[1][kept], matrix)
+        if noise is not None:
+            ratio, square_sd = constraint_noise_ratio(constraint[0][kept], matrix, constraint[2], noise)
+            metrics.update({"goodness/constraint_noise_ratio": ratio, "goodness/constraint_noise_square_sd": square_sd})
+            # ratio^2 is a chi-square mean over f rows, 1 +- sqrt(2 / f) for a model that fits, against a prediction
+            # known to square_sd: only a scatter beyond both says the model is wrong.
+            significant = ratio**2 > 1 + 4 * math.sqrt(2 / int(kept.sum()) + square_sd**2)
+            if ratio > MAX_CONSTRAINT_RATIO and significant and not robust:
+                assumed = (
+                    f"; with {p - matrix.shape[0]} channel(s) beyond the axes the noise in the load space is taken as "
+                    "equal to the noise off it, so channels of unequal noise (gains, amplifiers) read the same way: if "
+                    "neither can be, hold the mass still at each pose and give a time or group column, so that each "
+                    "channel's noise is measured within the poses"
+                    if channels is None else ""
+                )
+                warnings.append(
+                    f"the rows' load magnitudes scatter {ratio:.2f}x more about the calibration magnitude than the noise "
+                    "off the load space explains: the load is not one constant magnitude (a slipped or wrong mass, rows "
+                    f"in motion) or the sensor is not linear{assumed}"
+                )
+            misfit = magnitude_misfit(constraint[0][kept], constraint[2], matrix, noise)
+            if misfit is not None:
+                metrics.update(
+                    {"goodness/magnitude_misfit_ratio": misfit.ratio, "goodness/magnitude_misfit_z": misfit.z,
+                     "goodness/magnitude_batch_rows": float(misfit.batch_rows)}
+                )
+                if misfit.z > SERIAL_MISFIT_Z and not robust:
+                    warnings.append(magnitude_misfit_warning(misfit))
     if valley is not None:
         scan, predicted = valley
         ratio = scan.likely_change / predicted if predicted > 0 else math.inf

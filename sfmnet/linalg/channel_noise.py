@@ -11,22 +11,55 @@ off the load space, ``E = (Z - o) Q`` with ``Q = I - C^+ C`` the projector off t
 ``p (p + 1) / 2`` equations for ``p`` unknowns, but ``Q`` has rank ``p - n``, so at most ``(p - n)(p - n + 1) / 2`` of them
 are independent: ``v`` is identified from 3 channels off the load space (6 channels for 3 axes, 5 for 2), not from
 fewer (the noise is then taken as equal), and even then some combinations of the channels are barely told apart by a
-few hundred rows. So (H1) is solved by ridge regression towards equal noise: a combination the rows do not tell stays
-at the mean noise.
+few hundred rows, while the ones the magnitudes' check needs, the channels that carry the load, are the ones the readings
+off the load space see least. So (H1) is solved as a Bayesian regression with a wide prior about equal noise: the
+variances' posterior mean, where the rows tell a combination, is the rows'; where they do not it stays near equal noise,
+and the posterior covariance says how far each combination is from being known, which the checks carry into their
+verdicts instead of trusting the prior.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
 import torch
 
-# The ridge's weight, in standard errors of a covariance entry (``sigma^2 sqrt(2 / f)``): a combination of the channels
-# whose design singular value is below this many of them is drawn halfway or more to equal noise, so its estimate's
-# own noise stays under a tenth of the noise variance.
-NOISE_RIDGE_STANDARD_ERRORS = 5.0
+from sfmnet.linalg.group_means import group_means
+
+# The prior's standard deviations of each channel's noise variance about the channels' mean, in units of that mean,
+# among which the readings choose (the largest evidence): narrow where the channels are alike, so that a few hundred
+# rows do not read noise into the combinations they barely tell apart, wide where gains and amplifiers differ by
+# several times (a tester's sensor with three channels amplified 10x, its noise 0.5 % of each channel's span:
+# variances 100x apart, which a prior fixed at 0.2 had held near the mean, 1.5-4.6x under the truth in the load space,
+# and 5 of 6 clean sessions were disowned).
+NOISE_PRIOR_SDS = (0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
 # Rows whose squared reading off the load space is past this many times the median row's are left out of (H1): a bump
 # or a glitch there would pass for a channel's noise. Clean rows stay under it even with channels 30x apart in noise
 # (one channel's chi-square with one degree of freedom reaches 33x its median once in 10,000 rows).
 OFF_SPACE_TRIM = 50.0
+# Each row's noise in the load space is taken this many of its standard deviations up where outliers are judged
+# (:func:`residual_spread`).
+LOAD_SPACE_SDS = 2.0
+
+
+@dataclass(frozen=True)
+class ChannelNoise:
+    """Each channel's noise variance as the readings off the load space tell it (:func:`channel_noise`).
+
+    Attributes:
+        variances: ``p``, the posterior mean (raw units squared), none negative.
+        covariance: ``p x p``, their posterior covariance (raw units to the fourth): a combination ``w^T v`` is known to
+            ``sqrt(w^T covariance w)``.
+    """
+
+    variances: torch.Tensor
+    covariance: torch.Tensor
+
+    def combination_sd(self, weights: torch.Tensor) -> float:
+        """The standard deviation of ``weights^T v`` (``weights``: ``p``) under the posterior."""
+        return math.sqrt(max(float(weights @ self.covariance @ weights), 0.0))
 
 
 def off_load_space_projector(matrix: torch.Tensor) -> torch.Tensor:
@@ -35,40 +68,113 @@ def off_load_space_projector(matrix: torch.Tensor) -> torch.Tensor:
     return torch.eye(matrix.shape[1], dtype=matrix.dtype) - torch.linalg.pinv(matrix) @ matrix
 
 
-def channel_noise_variances(off_space: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor | None:
-    """Each channel's noise variance from the readings off the load space: (H1) by ridge regression towards the
-    channels' mean variance ``sigma^2 = |E|^2 / ((f - n) (p - n))``, rows far off the load space left out; None where
-    (H1) cannot identify them (``(p - n)(p - n + 1) / 2 < p``: fewer than 6 channels for 3 axes, 5 for 2).
+def equal_channel_noise(off_space: torch.Tensor, matrix: torch.Tensor) -> ChannelNoise | None:
+    """One noise variance for every channel, ``sigma^2 = |E|^2 / ((f - n)(p - n))``, and its sampling covariance
+    (``2 sigma^4 / ((f - n)(p - n))`` on every combination of unit weight): the assumption where (H1) cannot tell the
+    channels apart. None without rows or channels off the load space.
+
+    Args:
+        off_space: ``f x p`` (:func:`channel_noise`); matrix: ``C``, ``n x p``.
+    """
+    f, p = off_space.shape
+    dof = (f - matrix.shape[0]) * (p - matrix.shape[0])
+    if dof <= 0:
+        return None
+    mean = float(off_space.square().sum()) / dof
+    ones = torch.ones(p, p, dtype=matrix.dtype)
+    return ChannelNoise(torch.full((p,), mean, dtype=matrix.dtype), 2 * mean**2 / dof * ones)
+
+
+def within_pose_channel_noise(readings: torch.Tensor, groups: torch.Tensor) -> ChannelNoise | None:
+    """Each channel's noise variance measured about its pose means, where the rows were held still: every channel
+    seen whole, the load space as much as the rest, so nothing rests on (H1). Each variance, from ``f - K`` degrees of
+    freedom, is known to ``v_k sqrt(2 / (f - K))``. None with no pose of two or more rows.
+
+    Args:
+        readings: ``f x p`` (raw units); groups: ``f`` (long), each row's pose.
+    """
+    means, index, counts = group_means(readings, groups)
+    dof = len(readings) - len(counts)
+    if dof <= 0:
+        return None
+    variances = (readings - means[index]).square().sum(dim=0) / dof
+    return ChannelNoise(variances, torch.diag(2 * variances.square() / dof))
+
+
+def channel_noise(off_space: torch.Tensor, matrix: torch.Tensor) -> ChannelNoise | None:
+    """Each channel's noise variance from the readings off the load space: (H1) as a Bayesian regression.
+
+    (H1) is written in an orthonormal basis ``B`` of the space off the load space, where it holds each independent
+    equation once, ``sum_k v_k B_ka B_kb = S_ab`` (``S`` the sample covariance there, ``a <= b``), the entries read
+    together with their sampling covariance ``(S_ac S_bd + S_ad S_bc) / (f - n)`` (Wishart), so that noisy channels'
+    entries count for less. The prior is
+    ``N(sigma^2, (t sigma^2)^2)`` on each channel about the channels' mean variance ``sigma^2 = |E|^2 / ((f - n)(p - n))``,
+    its width ``t`` the one of :data:`NOISE_PRIOR_SDS` the readings make most likely (the linear-Gaussian model's
+    evidence). Rows far off the load space are left out. None where (H1) cannot identify the channels
+    (``(p - n)(p - n + 1) / 2 < p``: fewer than 6 channels for 3 axes, 5 for 2).
 
     Args:
         off_space: ``f x p``, the rows' readings less their offset and their least-squares load's reading
             (``(z_j - o) Q``, raw units); matrix: ``C``, ``n x p``.
 
     Returns:
-        ``p`` variances (raw units squared), none negative; all ``sigma^2`` where the rows cannot tell them apart.
+        The posterior (:class:`ChannelNoise`): its mean where the rows tell the channels apart, near ``sigma^2`` where
+        they do not, with a covariance that says which.
     """
     squares = off_space.square().sum(dim=1)
     off_space = off_space[squares <= OFF_SPACE_TRIM * squares.median()]
     f, p = off_space.shape
     n = matrix.shape[0]
-    # Fewer independent equations than channels: a ridge would fill the rest from the mean and put noise on channels
-    # the readings off the load space barely see, hiding a misfit in the load space (a tester's 5-channel sensor).
+    # Fewer independent equations than channels: the load space's noise would rest on the prior, and a mass that slipped
+    # could pass for it (a tester's 5-channel sensor at 6.2x its bars; with its rows shuffled, 5 of 8 such sessions at
+    # 6-10x, where equal noise flags all 8).
     if f <= n or (p - n) * (p - n + 1) // 2 < p:
         return None
-    complement = off_load_space_projector(matrix)
-    upper = torch.triu_indices(p, p)
-    design = complement[upper[0]] * complement[upper[1]]
-    covariance = (off_space.T @ off_space / (f - n))[upper[0], upper[1]]
-    mean = float(off_space.square().sum()) / ((f - n) * (p - n))
-    ridge = (NOISE_RIDGE_STANDARD_ERRORS**2 * 2 / (f - n)) * torch.eye(p, dtype=matrix.dtype)
-    # In units of the mean variance, so the ridge's weight is in standard errors whatever the raw units.
-    change = torch.linalg.solve(design.T @ design + ridge, design.T @ (covariance / mean - design.sum(dim=1)))
-    return (mean * (1 + change)).clamp(min=0)
+    # (H1) in an orthonormal basis of the space off the load space, where its p - n rows hold every independent
+    # equation once; the entries of a sample covariance are correlated (Wishart), so they are read together.
+    values, vectors = torch.linalg.eigh(off_load_space_projector(matrix))
+    basis = vectors[:, values > 0.5]
+    sample = basis.T @ off_space.T @ off_space @ basis / (f - n)
+    mean = float(sample.trace()) / (p - n)
+    upper = torch.triu_indices(p - n, p - n)
+    a, b = upper[0], upper[1]
+    design = (basis[:, a] * basis[:, b]).T
+    # In units of the mean variance: Cov(S_ab, S_cd) = (S_ac S_bd + S_ad S_bc) / (f - n).
+    entries = (sample[a][:, a] * sample[b][:, b] + sample[a][:, b] * sample[b][:, a]) / (mean**2 * (f - n))
+    residual = sample[a, b] / mean - design.sum(dim=1)
+
+    def log_evidence(prior_sd: float) -> float:
+        spread = entries + prior_sd**2 * design @ design.T
+        return -0.5 * float(residual @ torch.linalg.solve(spread, residual) + torch.linalg.slogdet(spread)[1])
+
+    def posterior(prior_sd: float) -> torch.Tensor:
+        return torch.linalg.inv(design.T @ weighted + torch.eye(p, dtype=matrix.dtype) / prior_sd**2)
+
+    weighted = torch.linalg.solve(entries, design)
+    change = posterior(max(NOISE_PRIOR_SDS, key=log_evidence)) @ (weighted.T @ residual)
+    # The evidence chooses the width from the combinations the rows tell; in those they barely tell it favours the
+    # narrowest prior, which would vouch for equal noise there. How well the rows fix each combination is theirs alone.
+    return ChannelNoise((mean * (1 + change)).clamp(min=0), mean**2 * posterior(max(NOISE_PRIOR_SDS)))
 
 
-def residual_spread(
-    variances: torch.Tensor, matrix: torch.Tensor, known: torch.Tensor, directions: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
+class RowSpread(NamedTuple):
+    """How each row's squared residual spreads (:func:`residual_spread`), in units of the channels' mean variance.
+
+    Attributes:
+        mean: ``f``, ``mu_j``; dof: ``f``, ``nu_j``; upper: ``f``, ``mu_j`` with the row's noise in the load space taken
+            :data:`LOAD_SPACE_SDS` standard deviations up, as far as the readings allow it to be.
+    """
+
+    mean: torch.Tensor
+    dof: torch.Tensor
+    upper: torch.Tensor
+
+    def rows(self, kept: torch.Tensor) -> RowSpread:
+        """The spread of the rows ``kept`` (a mask or indices)."""
+        return RowSpread(self.mean[kept], self.dof[kept], self.upper[kept])
+
+
+def residual_spread(noise: ChannelNoise, matrix: torch.Tensor, known: torch.Tensor, directions: torch.Tensor) -> RowSpread:
     """How each row's squared residual spreads when channels differ in noise: ``|r_j|^2 ~ (mu_j / nu_j) chi2(nu_j)``
     in units of the channels' mean variance (method §5, eq. H2).
 
@@ -77,21 +183,23 @@ def residual_spread(
     ``a_j = C^T u_j / |C^T u_j|`` (``u_j`` the row's direction): covariance ``M_j = (Q + a_j a_j^T) Sigma (Q + a_j a_j^T)``.
     ``mu_j = tr M_j`` and, matching the variance too (Satterthwaite), ``nu_j = mu_j^2 / tr(M_j^2)``: with equal noise
     ``p`` and ``p`` for a known load, ``p - n + 1`` twice for an unknown one; with unequal noise fewer degrees of freedom
-    (a longer tail) and a mean that depends on where the row's direction reads.
+    (a longer tail) and a mean that depends on where the row's direction reads. The noise in the load space is known
+    only as well as the readings off it tell (``noise.covariance``): ``upper`` takes each row's share of it, ``tr Sigma``
+    for a known load and ``a_j^T Sigma a_j`` for an unknown one, :data:`LOAD_SPACE_SDS` standard deviations up, so that
+    a row is called far out only if it is under every noise the readings allow.
 
     Args:
-        variances: ``p`` (:func:`channel_noise_variances`); matrix: ``C``, ``n x p``; known: ``f`` (bool), the rows of
+        noise: the channels' noise (:func:`channel_noise`); matrix: ``C``, ``n x p``; known: ``f`` (bool), the rows of
             known load; directions: ``g x n``, the unknown rows' directions (``g`` = their count), in order.
-
-    Returns:
-        ``mu``, ``nu``: ``f`` each.
     """
-    sigma = variances / variances.mean()
+    scale = float(noise.variances.mean())
+    sigma = noise.variances / scale
     complement = off_load_space_projector(matrix)
     off = complement * sigma @ complement
     along = directions @ matrix
     along = along / along.norm(dim=1, keepdim=True)
-    radial = along.square() @ sigma
+    weights = along.square()
+    radial = weights @ sigma
     # tr(M_j^2) = tr(off^2) + (a^T Sigma a)^2 + 2 |Q Sigma a|^2, as Q a = 0.
     cross = (along * sigma @ complement).square().sum(dim=1)
     unknown_mean = float(off.trace()) + radial
@@ -99,4 +207,6 @@ def residual_spread(
     mean = torch.full(known.shape, float(sigma.sum()), dtype=matrix.dtype)
     dof = torch.full(known.shape, float(sigma.sum() ** 2 / sigma.square().sum()), dtype=matrix.dtype)
     mean[~known], dof[~known] = unknown_mean, unknown_mean.square() / unknown_squares
-    return mean, dof
+    margin = torch.full(known.shape, noise.combination_sd(torch.ones_like(sigma)) / scale, dtype=matrix.dtype)
+    margin[~known] = ((weights @ noise.covariance) * weights).sum(dim=1).clamp(min=0).sqrt() / scale
+    return RowSpread(mean, dof, mean + LOAD_SPACE_SDS * margin)
