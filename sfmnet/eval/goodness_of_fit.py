@@ -203,16 +203,15 @@ class GoodnessOfFit:
 def within_group_noise(readings: torch.Tensor, groups: torch.Tensor) -> float:
     """Pooled standard deviation of the readings about their group means (raw units, per channel entry).
 
-    ``sqrt(sum_k sum_{j in k} |z_j - zbar_k|^2 / ((f - K) p))``: the reading noise as seen within
-    poses, which no calibration model can explain. NaN with no group of two or more rows.
+    ``sqrt(sum_k sum_{j in k} |z_j - zbar_k|^2 / ((f - K) p))``, the channels' variances within poses
+    (:func:`~sfmnet.linalg.channel_noise.within_pose_channel_noise`) averaged: the reading noise as seen within poses,
+    which no calibration model can explain. NaN with no group of two or more rows.
 
     Args:
         readings: ``f x p``; groups: ``f`` (long).
     """
-    means, index, counts = group_means(readings, groups)
-    deviation = readings - means[index]
-    dof = (len(readings) - len(counts)) * readings.shape[1]
-    return math.sqrt(float(deviation.pow(2).sum()) / dof) if dof > 0 else math.nan
+    noise = within_pose_channel_noise(readings, groups)
+    return math.sqrt(float(noise.variances.mean())) if noise is not None else math.nan
 
 
 class PoseMeans(NamedTuple):
@@ -381,6 +380,12 @@ def serial_misfit(
     return worst
 
 
+def magnitude_weights(loads: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
+    """``f x p``, ``(C^T u_j)_k^2``: how much of channel ``k``'s noise variance reaches row ``j``'s load magnitude
+    (``u_j`` the direction of its load, ``loads`` ``f x n``; ``C`` ``n x p``), ``s_j^2 = sum_k v_k (C^T u_j)_k^2``."""
+    return (loads / loads.norm(dim=1, keepdim=True) @ matrix).square()
+
+
 def magnitude_misfit(
     loads: torch.Tensor, magnitude: float, matrix: torch.Tensor, noise: ChannelNoise
 ) -> SerialMisfit | None:
@@ -402,7 +407,7 @@ def magnitude_misfit(
     """
     norms = loads.norm(dim=1)
     directions = loads / norms[:, None]
-    spread = (directions @ matrix).square() @ noise.variances
+    spread = magnitude_weights(loads, matrix) @ noise.variances
     standardised = (norms.square() - magnitude**2) / (2 * magnitude * spread.sqrt())
     successive = float((standardised[1:] - standardised[:-1]).square().mean()) / 2 if len(loads) > 1 else math.nan
     if not successive > 0:
@@ -581,8 +586,7 @@ def constraint_noise_ratio(
             noise: the channels' noise (:func:`~sfmnet.linalg.channel_noise.channel_noise`, or
             :func:`~sfmnet.linalg.channel_noise.equal_channel_noise` where that cannot tell them apart).
     """
-    directions = loads / loads.norm(dim=1, keepdim=True)
-    weights = (directions @ matrix).square()
+    weights = magnitude_weights(loads, matrix)
     spread = weights @ noise.variances
     standardised = (loads.norm(dim=1) - magnitude).square() / spread
     gradient = -(standardised / spread) @ weights / len(loads)
