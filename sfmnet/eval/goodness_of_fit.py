@@ -399,7 +399,9 @@ def magnitude_misfit(
     ``sum (t_j+1 - t_j)^2 / (2 (f - 1))``, which neither a step nor a slow trend moves, nor how well the channels' noise
     is known (``s_j`` only weighs the rows): a mass that slipped or was changed partway, or a gain that drifted, shows
     where the magnitudes' scatter alone cannot tell it from noise in the load space. The global parameters the means
-    see are the metric's ``n (n + 1) / 2``, entering row ``j`` through ``u_j u_j^T``.
+    see are the metric's ``n (n + 1) / 2``, entering row ``j`` through ``u_j u_j^T``, and the offsets' ``n`` in the
+    load space, through ``u_j``: ``t`` is taken less its least-squares fit on them first, since the calibration's error,
+    from whatever fit, moves the magnitudes so.
 
     Args:
         loads: ``f x n``, the unknown rows' least-squares loads in recording order; magnitude: ``F``; matrix: ``C``,
@@ -407,15 +409,20 @@ def magnitude_misfit(
     """
     norms = loads.norm(dim=1)
     directions = loads / norms[:, None]
+    upper = torch.triu_indices(loads.shape[1], loads.shape[1])
+    design = torch.cat([directions[:, upper[0]] * directions[:, upper[1]], directions], dim=1)
+    if len(loads) <= design.shape[1] + 1:
+        return None
     spread = magnitude_weights(loads, matrix) @ noise.variances
     standardised = (norms.square() - magnitude**2) / (2 * magnitude * spread.sqrt())
-    successive = float((standardised[1:] - standardised[:-1]).square().mean()) / 2 if len(loads) > 1 else math.nan
+    # The calibration's own error moves each magnitude by a quadratic in its direction, whatever fit made it: taken out
+    # by least squares, it costs the batch means the parameters' share, as the serial check counts it.
+    standardised = standardised - design @ torch.linalg.lstsq(design, standardised[:, None]).solution[:, 0]
+    successive = float((standardised[1:] - standardised[:-1]).square().mean()) / 2
     if not successive > 0:
         return None
-    upper = torch.triu_indices(loads.shape[1], loads.shape[1])
-    metric = directions[:, upper[0]] * directions[:, upper[1]]
     ones = torch.ones(len(loads), dtype=torch.long)
-    return serial_misfit(standardised[:, None], ones, math.sqrt(successive), float(metric.shape[1]), metric)
+    return serial_misfit(standardised[:, None], ones, math.sqrt(successive), float(design.shape[1]), design)
 
 
 def magnitude_misfit_warning(misfit: SerialMisfit) -> str:
@@ -578,8 +585,9 @@ def constraint_noise_ratio(
     constant and the sensor linear. The mean square of the standardised magnitudes is ~1 then; a slipped mass, a load
     that is not the calibration mass or a nonlinear sensor raise it, even with no repeated pose to compare against.
     The noise in the load space is known only as well as ``v``'s combination ``g^T v`` that moves it,
-    ``g = d ratio^2 / d v = -mean_j t_j (C^T u_j)^2 / s_j^2`` (``t_j`` the row's standardised square): its standard
-    deviation is ``square_sd``, large where the channels that carry the load are the ones the readings off it see least.
+    ``g = d ratio^2 / d v = -mean_j (C^T u_j)^2 / s_j^2`` at the model (each row's standardised square at its mean, 1,
+    so that a misfit does not widen its own test): its standard deviation is ``square_sd``, large where the channels
+    that carry the load are the ones the readings off it see least.
 
     Args:
         loads: ``f x n`` least-squares loads of the unknown-load rows; matrix: ``C``, ``n x p``;
@@ -589,7 +597,8 @@ def constraint_noise_ratio(
     weights = magnitude_weights(loads, matrix)
     spread = weights @ noise.variances
     standardised = (loads.norm(dim=1) - magnitude).square() / spread
-    gradient = -(standardised / spread) @ weights / len(loads)
+    # At the model (t_j = 1 on average), so that a misfit, which raises t_j, does not widen its own test.
+    gradient = -(1 / spread) @ weights / len(loads)
     return ConstraintRatio(float(standardised.mean().sqrt()), noise.combination_sd(gradient))
 
 
@@ -858,12 +867,19 @@ def goodness_of_fit(
         if groups is not None and pose_sums is None:
             channels = within_pose_channel_noise(readings, groups)
         channels = channels or channel_noise(constraint[1], matrix)
+    # A row tied to a pose of several rows keeps its whole noise in its residual, as a known load's does: the pose's
+    # direction is fitted to all of them, not to it.
+    whole = known.clone()
+    if groups is not None and poses is not None and poses.tied:
+        counts = torch.unique(groups, return_inverse=True, return_counts=True)
+        whole |= counts[2][counts[1]] > 1
     spread = None
     if channels is not None:
         variances = channels.variances
         metrics["goodness/channel_noise_max_ratio"] = float(variances.max() / variances.mean()) ** 0.5
-        spread = residual_spread(channels, matrix, known, constraint[0] / constraint[0].norm(dim=1, keepdim=True))
-    outliers, robust_noise = outlying_rows(residuals, dof, spread)
+        own = constraint[0][~whole[~known]]
+        spread = residual_spread(channels, matrix, whole, own / own.norm(dim=1, keepdim=True))
+    outliers, robust_noise = outlying_rows(residuals, torch.where(whole, p, dof), spread)
     if robust:
         fit_noise = robust_noise
     if groups is not None:
