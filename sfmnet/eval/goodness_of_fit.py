@@ -239,11 +239,13 @@ class PoseStatistics(NamedTuple):
 
 
 def pose_statistics(
-    readings: torch.Tensor, residuals: torch.Tensor, groups: torch.Tensor, dof: torch.Tensor
+    held: ChannelNoise | None, residuals: torch.Tensor, groups: torch.Tensor, dof: torch.Tensor
 ) -> PoseStatistics:
-    """:class:`PoseStatistics` of rows in memory: ``readings`` and ``residuals`` ``f x p``, ``groups`` and ``dof``
-    ``f`` (long)."""
-    return PoseStatistics(within_group_noise(readings, groups), pose_means(residuals, groups, dof))
+    """:class:`PoseStatistics` of rows in memory: ``held`` the channels' noise within the poses
+    (:func:`~sfmnet.linalg.channel_noise.within_pose_channel_noise`, None with no pose of two rows), ``residuals``
+    ``f x p``, ``groups`` and ``dof`` ``f`` (long)."""
+    within = math.sqrt(float(held.variances.mean())) if held is not None else math.nan
+    return PoseStatistics(within, pose_means(residuals, groups, dof))
 
 
 def summed_pose_statistics(sums: IntervalSums) -> PoseStatistics:
@@ -380,10 +382,10 @@ def serial_misfit(
     return worst
 
 
-def magnitude_weights(loads: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
+def magnitude_weights(directions: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
     """``f x p``, ``(C^T u_j)_k^2``: how much of channel ``k``'s noise variance reaches row ``j``'s load magnitude
-    (``u_j`` the direction of its load, ``loads`` ``f x n``; ``C`` ``n x p``), ``s_j^2 = sum_k v_k (C^T u_j)_k^2``."""
-    return (loads / loads.norm(dim=1, keepdim=True) @ matrix).square()
+    (``directions`` ``f x n``, each row's unit ``u_j``; ``C`` ``n x p``), ``s_j^2 = sum_k v_k (C^T u_j)_k^2``."""
+    return (directions @ matrix).square()
 
 
 def magnitude_misfit(
@@ -413,7 +415,7 @@ def magnitude_misfit(
     design = torch.cat([directions[:, upper[0]] * directions[:, upper[1]], directions], dim=1)
     if len(loads) <= design.shape[1] + 1:
         return None
-    spread = magnitude_weights(loads, matrix) @ noise.variances
+    spread = magnitude_weights(directions, matrix) @ noise.variances
     standardised = (norms.square() - magnitude**2) / (2 * magnitude * spread.sqrt())
     # The calibration's own error moves each magnitude by a quadratic in its direction, whatever fit made it: taken out
     # by least squares, it costs the batch means the parameters' share, as the serial check counts it.
@@ -594,7 +596,7 @@ def constraint_noise_ratio(
             noise: the channels' noise (:func:`~sfmnet.linalg.channel_noise.channel_noise`, or
             :func:`~sfmnet.linalg.channel_noise.equal_channel_noise` where that cannot tell them apart).
     """
-    weights = magnitude_weights(loads, matrix)
+    weights = magnitude_weights(loads / loads.norm(dim=1, keepdim=True), matrix)
     spread = weights @ noise.variances
     standardised = (loads.norm(dim=1) - magnitude).square() / spread
     # At the model (t_j = 1 on average), so that a misfit, which raises t_j, does not widen its own test.
@@ -860,13 +862,10 @@ def goodness_of_fit(
     metrics: dict[str, float] = {}
     warnings: list[str] = []
     dof = torch.where(known, p, p - direction_dims + 1)
-    channels = None
-    if constraint is not None:
-        # Rows held still measure every channel's noise whole; without them (or with only a stream's sums) the
-        # readings off the load space tell it as far as (H1) can.
-        if groups is not None and pose_sums is None:
-            channels = within_pose_channel_noise(readings, groups)
-        channels = channels or channel_noise(constraint[1], matrix)
+    # Rows held still measure every channel's noise whole; without them (or with only a stream's sums) the readings off
+    # the load space tell it as far as (H1) can.
+    held = within_pose_channel_noise(readings, groups) if groups is not None and pose_sums is None else None
+    channels = (held or channel_noise(constraint[1], matrix)) if constraint is not None else None
     # A row tied to a pose of several rows keeps its whole noise in its residual, as a known load's does: the pose's
     # direction is fitted to all of them, not to it.
     whole = known.clone()
@@ -884,7 +883,7 @@ def goodness_of_fit(
         fit_noise = robust_noise
     if groups is not None:
         if pose_sums is None:
-            within, means = pose_statistics(readings, residuals, groups, dof)
+            within, means = pose_statistics(held, residuals, groups, dof)
         else:
             within, means = summed_pose_statistics(pose_sums)
         where, hint = "static intervals or poses", ""

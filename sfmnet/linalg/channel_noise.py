@@ -147,10 +147,11 @@ def channel_noise(off_space: torch.Tensor, matrix: torch.Tensor) -> ChannelNoise
         spread = entries + prior_sd**2 * design @ design.T
         return -0.5 * float(residual @ torch.linalg.solve(spread, residual) + torch.linalg.slogdet(spread)[1])
 
+    weighted = torch.linalg.solve(entries, design)
+
     def posterior(prior_sd: float) -> torch.Tensor:
         return torch.linalg.inv(design.T @ weighted + torch.eye(p, dtype=matrix.dtype) / prior_sd**2)
 
-    weighted = torch.linalg.solve(entries, design)
     change = posterior(max(NOISE_PRIOR_SDS, key=log_evidence)) @ (weighted.T @ residual)
     # The evidence chooses the width from the combinations the rows tell; in those they barely tell it favours the
     # narrowest prior, which would vouch for equal noise there. How well the rows fix each combination is theirs alone.
