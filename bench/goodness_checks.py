@@ -13,6 +13,8 @@ circles), noise 0.5 % of each channel's span, 600 rows. Each case is clean or ca
 defect:
 
 - ``drift``: each channel's offset drifts 1 % of its full scale over the recording;
+- ``warming``: one channel's gain drifts 3 % over the recording (warming up), the truth the sensor at its end, as it will
+  be used;
 - ``nonlinear``: each channel 0.5 % of its full scale from linear (a square law);
 - ``shuffled``: the sweep's rows given in random order (recording order then says nothing);
 - ``spread10``: each channel's noise drawn log-uniform over a factor 10 (RMS kept), 8 channels (``-p5``, ``-p4``: 5 or 4);
@@ -60,11 +62,14 @@ CASES = (
     Case("sweep", "sweep", 6, ""),
     Case("sweep-drift", "sweep", 6, "drift"),
     Case("sweep-nonlinear", "sweep", 6, "nonlinear"),
+    Case("sweep-warming", "sweep", 6, "warming"),
     Case("shuffled", "sweep", 6, "shuffled"),
     Case("shuffled-drift", "sweep", 6, "shuffled drift"),
     Case("shuffled-nonlinear", "sweep", 6, "shuffled nonlinear"),
     Case("uniform", "uniform", 8, ""),
     Case("uniform-nonlinear", "uniform", 8, "nonlinear"),
+    Case("uniform-warming", "uniform", 8, "warming"),
+    Case("shuffled-warming", "uniform", 8, "shuffled warming"),
     Case("spread10", "uniform", 8, "spread10"),
     Case("spread10-slip", "uniform", 8, "spread10 slip"),
     Case("spread10-p5", "uniform", 5, "spread10"),
@@ -115,6 +120,9 @@ def session(case: Case, seed: int) -> tuple[np.ndarray, np.ndarray | None, torch
         readings += np.outer(np.arange(rows) / (rows - 1), 0.01 * scale * generator.choice([-1, 1], size=case.channels))
     if "nonlinear" in case.defect:
         readings += 0.005 * linear**2 / scale
+    if "warming" in case.defect:
+        drifting = generator.integers(case.channels)
+        readings[:, drifting] += 0.03 * (np.arange(rows) / (rows - 1) - 1) * linear[:, drifting]
     noise = np.full(case.channels, 0.01 * MAGNITUDE * np.linalg.norm(shape) / math.sqrt(3 * case.channels))
     if "spread10" in case.defect:
         factors = np.exp(generator.uniform(0, math.log(10), size=case.channels))

@@ -130,6 +130,7 @@ def calibration_diagnostics(
         unknown_row_centred_coverage=direction_coverage(directions[~known], centred=True)
         if model.constrained and directions is not None and directions.shape[1] == 3 and int((~known).sum()) > 3
         else None,
+        channel_names=channels,
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness

@@ -427,6 +427,88 @@ def magnitude_misfit(
     return serial_misfit(standardised[:, None], ones, math.sqrt(successive), float(design.shape[1]), design)
 
 
+class ChannelGainMisfit(NamedTuple):
+    """The channel whose gain varies most along the recording beyond chance (:func:`channel_gain_misfit`): its index,
+    its worst batch size's figures and its gain's change from the first row to the last by a straight-line fit (a
+    fraction: 0.03 for 3 % higher at the end)."""
+
+    channel: int
+    misfit: SerialMisfit
+    change: float
+
+
+def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor) -> ChannelGainMisfit | None:
+    """How far each channel's gain varies along the recording, beyond what independent noise explains (method §5,
+    "A channel's gain along the recording", eq. G1).
+
+    A channel ``k`` whose gain is ``1 + g_j`` at row ``j`` reads ``g_j y_jk`` more than the model, ``y_jk = (m_j S)_k``
+    its fitted signal, and ``(1 - h_k) g_j y_jk`` of that stays in its residual off the load space, ``e_jk``
+    (``h_k = H_kk``, ``H`` the hat matrix of the load space; ``p > n``). Off the load space a row's residual has one
+    covariance whatever its direction, so over a batch ``B`` of consecutive rows the projection
+    ``(sum_B y_jk e_jk)^2 / sum_B y_jk^2`` is ``sigma_k^2 chi2(1)`` for a steady gain, in random orientations too, where
+    the residuals' own batch means cancel. Summed over the batches (cut as :func:`serial_misfit` cuts them) it is
+    ``sigma_k^2 chi2(batches - share)``, ``share = tr((X^T X)^-1 sum_B x_B x_B^T / sum_B y_jk^2)``,
+    ``x_B = sum_B y_jk x_j``, the part of the global parameters (``X``: each row's load and, with offsets, a 1, taken
+    out of ``e_k`` by least squares first) the projections see. ``sigma_k^2`` is taken from successive rows,
+    ``sum (e_j+1,k - e_jk)^2 / (2 (f - 1))``, which a slow change of gain barely moves. Returns the channel and batch
+    size of largest z, or None where no size gives :data:`MIN_SERIAL_BATCHES` batches.
+
+    Args:
+        residuals: ``f x p``, the unknown rows' residuals in recording order (raw units); shape: ``S``, ``n x p``;
+            design: ``f x q``, ``X``, each row's fitted load ``m_j`` (its first ``n`` columns) and, with offsets, a 1.
+    """
+    rows_given = len(design)
+    if rows_given <= design.shape[1] + 1 or rows_given // SERIAL_BATCH_ROWS[0] < MIN_SERIAL_BATCHES:
+        return None
+    signal = design[:, : shape.shape[0]] @ shape
+    hat = shape.T @ torch.linalg.solve(shape @ shape.T, shape)
+    off = residuals - residuals @ hat
+    # The fit's own error in the shape and offsets, whatever fit made it: taken out exactly, it costs the share above.
+    off = off - design @ torch.linalg.lstsq(design, off).solution
+    inverse = torch.linalg.inv(design.T @ design)
+    worst: tuple[int, SerialMisfit] | None = None
+    for channel in range(signal.shape[1]):
+        noise = float((off[1:, channel] - off[:-1, channel]).square().mean()) / 2
+        if not noise > 0:
+            continue
+        for rows in SERIAL_BATCH_ROWS:
+            batches = rows_given // rows
+            if batches < MIN_SERIAL_BATCHES:
+                break
+            used = batches * rows
+            weights = signal[:used, channel].reshape(batches, rows)
+            power = weights.square().sum(dim=1)
+            seen = power > 0
+            projected = (weights * off[:used, channel].reshape(batches, rows)).sum(dim=1)[seen]
+            statistic = float((projected.square() / power[seen]).sum()) / noise
+            moments = torch.einsum("br,brq->bq", weights, design[:used].reshape(batches, rows, -1))[seen]
+            share = float((inverse @ (moments.T / power[seen]) @ moments).diagonal().sum())
+            dof = int(seen.sum())
+            found = SerialMisfit(rows, math.sqrt(statistic / dof), chi_square_z(statistic, dof - share))
+            if math.isfinite(found.z) and (worst is None or found.z > worst[1].z):
+                worst = (channel, found)
+    if worst is None:
+        return None
+    channel, misfit = worst
+    # g_j = a + b j / f fitted to the residual off the load space, then scaled up by the part the loads absorbed.
+    fitted = signal[:, channel]
+    ramp = torch.stack([fitted, fitted * torch.linspace(0, 1, rows_given, dtype=fitted.dtype)], dim=1)
+    slope = float(torch.linalg.lstsq(ramp, off[:, channel, None]).solution[1, 0])
+    return ChannelGainMisfit(channel, misfit, slope / max(1 - float(hat[channel, channel]), 1e-12))
+
+
+def channel_gain_warning(gain: ChannelGainMisfit, channel: str) -> str:
+    """The warning for a channel whose gain varies along the recording beyond chance (:func:`channel_gain_misfit`)."""
+    return (
+        f"channel {channel}'s gain changes along the recording (or from row to row): over {gain.misfit.batch_rows} "
+        f"consecutive rows its residuals follow its own signal {gain.misfit.ratio:.2f}x as much as independent noise "
+        f"explains (z = {gain.misfit.z:.1f}), about {100 * gain.change:+.1f} % from the first row to the last on a "
+        "straight line: the sensor warming up, or its amplifier or bridge supply drifting; the calibration is the "
+        "recording's average and its error bars too small for the sensor at either end: let the sensor warm up and "
+        "record again, or calibrate the parts before and after a change apart"
+    )
+
+
 def magnitude_misfit_warning(misfit: SerialMisfit) -> str:
     """The warning for magnitudes that differ from batch to batch beyond chance (:func:`magnitude_misfit`)."""
     return (
@@ -784,6 +866,7 @@ def goodness_of_fit(
     serial_directions: torch.Tensor | None = None,
     unknown_row_coverage: float | None = None,
     unknown_row_centred_coverage: float | None = None,
+    channel_names: list[str] | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -833,6 +916,7 @@ def goodness_of_fit(
             (one circle of orientations) the bars are disowned; None: not judged (fewer than three force axes).
         poses_found: ``groups`` are poses found in the readings
             (:func:`~sfmnet.eval.diagnostics.held_pose_groups`), not given by a time or pose column.
+        channel_names: the channels' names, for the messages (None: their indices).
 
     Returns:
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
@@ -854,6 +938,9 @@ def goodness_of_fit(
         (:func:`serial_misfit`, the unknown rows in recording order, outliers left out) (without groups),
         ``goodness/neighbour_misfit_ratio``, ``goodness/neighbour_misfit_z`` and ``goodness/neighbour_batch_rows``
         (the same in an order of neighbouring directions) (without groups, with ``serial_directions``),
+        ``goodness/gain_misfit_ratio``, ``goodness/gain_misfit_z``, ``goodness/gain_batch_rows`` and
+        ``goodness/gain_change_pct`` (:func:`channel_gain_misfit`, the worst channel) (without groups, with more
+        channels than axes),
         ``goodness/pose_equations`` and, where fewer poses were found than counted up to,
         ``goodness/pose_scatter_ratio`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``), ``goodness/alternation_bias`` and
         ``goodness/bias_bars_ratio`` (with ``alternation_bias`` and ``matrix_std``).
@@ -936,6 +1023,18 @@ def goodness_of_fit(
             )
             if misfit.z > SERIAL_MISFIT_Z:
                 warnings.append(batch_misfit_warning(misfit, by_direction=directions is not None))
+        if p > matrix.shape[0] and bool(kept.any()):
+            # The fitted readings are the design's exact linear function: its first n coefficients are the shape.
+            fitted = torch.linalg.lstsq(serial_design[kept], (readings - residuals)[kept]).solution
+            gain = channel_gain_misfit(residuals[kept], fitted[: matrix.shape[0]], serial_design[kept])
+            if gain is not None:
+                metrics.update(
+                    {"goodness/gain_misfit_ratio": gain.misfit.ratio, "goodness/gain_misfit_z": gain.misfit.z,
+                     "goodness/gain_batch_rows": float(gain.misfit.batch_rows), "goodness/gain_change_pct": 100 * gain.change}
+                )
+                if gain.misfit.z > SERIAL_MISFIT_Z:
+                    name = channel_names[gain.channel] if channel_names is not None else str(gain.channel)
+                    warnings.append(channel_gain_warning(gain, name))
     if constraint is not None:
         # Outlying rows have their own check; here a few bumps would read as a mass that is not constant.
         kept = ~outliers[~known]
