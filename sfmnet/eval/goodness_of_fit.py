@@ -464,7 +464,7 @@ def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: to
     hat = shape.T @ torch.linalg.solve(shape @ shape.T, shape)
     off = residuals - residuals @ hat
     # The fit's own error in the shape and offsets, whatever fit made it: taken out exactly, it costs the share above.
-    off = off - design @ torch.linalg.lstsq(design, off).solution
+    off -= design @ torch.linalg.lstsq(design, off).solution
     inverse = torch.linalg.inv(design.T @ design)
     worst: tuple[int, SerialMisfit] | None = None
     for channel in range(signal.shape[1]):
@@ -1024,9 +1024,9 @@ def goodness_of_fit(
             if misfit.z > SERIAL_MISFIT_Z:
                 warnings.append(batch_misfit_warning(misfit, by_direction=directions is not None))
         if p > matrix.shape[0] and bool(kept.any()):
-            # The fitted readings are the design's exact linear function: its first n coefficients are the shape.
-            fitted = torch.linalg.lstsq(serial_design[kept], (readings - residuals)[kept]).solution
-            gain = channel_gain_misfit(residuals[kept], fitted[: matrix.shape[0]], serial_design[kept])
+            # C = (S S^T)^-1 S, so S = (C C^T)^-1 C.
+            shape = torch.linalg.solve(matrix @ matrix.T, matrix)
+            gain = channel_gain_misfit(residuals[kept], shape, serial_design[kept])
             if gain is not None:
                 metrics.update(
                     {"goodness/gain_misfit_ratio": gain.misfit.ratio, "goodness/gain_misfit_z": gain.misfit.z,
