@@ -83,6 +83,12 @@ SERIAL_BATCH_ROWS = (4, 8, 16, 32, 64, 128, 256)
 # 360 clean sessions (sweeps and uniform rows, 3 and 6 channels, 120-400 rows) a size of 6-15 batches scored a mean of
 # 0.3-1.1, a standard deviation of 0.5-0.9 and at most 2.9.
 MIN_SERIAL_BATCHES = 6
+# Rows needed before a channel's noise is judged against its signal (:func:`channel_gain_spread`).
+MIN_SPREAD_ROWS = 50
+# ... and the standard score its growth with the signal may reach, on the worst channel. On 60 clean 8-channel sessions
+# (150-4,000 uniform rows; Gaussian, Student-t with 3 and 5 degrees of freedom, channels' noise 100x apart) it was at
+# most 2.7; on bench/goodness_checks.py's shuffled-warming (a gain drifting 3 % over rows given out of order) 4.1-14.9.
+GAIN_SPREAD_Z = 4.0
 # The largest batch size's z may reach this (the largest of seven correlated standard normals: p ~ 1e-3 each).
 SERIAL_MISFIT_Z = 4.0
 # Holds of a pose held more than once may differ by this many standard deviations of what noise allows (p ~ 1e-3): on 100
@@ -437,6 +443,28 @@ class ChannelGainMisfit(NamedTuple):
     change: float
 
 
+def off_load_space(
+    residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The residuals off the load space, less their least-squares fit on ``design`` (``f x p``), each row's fitted
+    signal ``m_j S`` (``f x p``) and the hat matrix of the load space ``H = S^T (S S^T)^-1 S`` (``p x p``), for
+    :func:`channel_gain_misfit` and :func:`channel_gain_spread`.
+
+    Off the load space a row's residual has one covariance whatever its direction; along its load it carries the
+    row's magnitude noise, which varies with the direction. The fit's own error in the shape and offsets, whatever fit
+    made it, is taken out exactly (its share of the batch statistics is counted where they are judged).
+
+    Args:
+        residuals: ``f x p`` (raw units); shape: ``S``, ``n x p``; design: ``f x q``, each row's fitted load ``m_j``
+            (its first ``n`` columns) and, with offsets, a 1.
+    """
+    signal = design[:, : shape.shape[0]] @ shape
+    hat = shape.T @ torch.linalg.solve(shape @ shape.T, shape)
+    off = residuals - residuals @ hat
+    off -= design @ torch.linalg.lstsq(design, off).solution
+    return off, signal, hat
+
+
 def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor) -> ChannelGainMisfit | None:
     """How far each channel's gain varies along the recording, beyond what independent noise explains (method §5,
     "A channel's gain along the recording", eq. G1).
@@ -460,11 +488,7 @@ def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: to
     rows_given = len(design)
     if rows_given <= design.shape[1] + 1 or rows_given // SERIAL_BATCH_ROWS[0] < MIN_SERIAL_BATCHES:
         return None
-    signal = design[:, : shape.shape[0]] @ shape
-    hat = shape.T @ torch.linalg.solve(shape @ shape.T, shape)
-    off = residuals - residuals @ hat
-    # The fit's own error in the shape and offsets, whatever fit made it: taken out exactly, it costs the share above.
-    off -= design @ torch.linalg.lstsq(design, off).solution
+    off, signal, hat = off_load_space(residuals, shape, design)
     inverse = torch.linalg.inv(design.T @ design)
     worst: tuple[int, SerialMisfit] | None = None
     for channel in range(signal.shape[1]):
@@ -497,6 +521,54 @@ def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: to
     return ChannelGainMisfit(channel, misfit, slope / max(1 - float(hat[channel, channel]), 1e-12))
 
 
+class ChannelGainSpread(NamedTuple):
+    """The channel whose noise grows most with its own signal (:func:`channel_gain_spread`): its index, the standard
+    score of that growth and the gain's spread from row to row it implies (a fraction: 0.01 for 1 %)."""
+
+    channel: int
+    z: float
+    spread: float
+
+
+def channel_gain_spread(residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor) -> ChannelGainSpread | None:
+    """How far each channel's noise grows with its own signal, in any row order (method §5, "A channel's noise against
+    its own signal", eq. G2).
+
+    A gain that varies from row to row by ``g_j`` of spread ``s`` (a gain changed partway in rows given in no order, a
+    noisy bridge supply) adds ``(1 - h_k)^2 s^2 y_jk^2`` to the variance of channel ``k``'s residual off the load space,
+    whose variance is otherwise the same on every row (:func:`channel_gain_misfit`). The slope ``b`` of ``e_jk^2`` on
+    ``y_jk^2`` (least squares with an intercept) is scored against its heteroscedasticity-consistent standard error,
+    ``z = b sum_j (x_j - xbar)^2 / sqrt(sum_j (x_j - xbar)^2 r_j^2)``, ``x_j = y_jk^2``, ``r_j`` the regression's
+    residuals, which holds for noise of any tail; one-sided, the largest over the channels. ``s = sqrt(max(b, 0)) / (1 - h_k)``. None where the rows
+    are too few (:data:`MIN_SPREAD_ROWS`).
+
+    Args:
+        residuals: ``f x p``, the unknown rows' residuals (raw units, any order); shape: ``S``, ``n x p``;
+            design: ``f x q``, each row's fitted load ``m_j`` (its first ``n`` columns) and, with offsets, a 1.
+    """
+    if len(design) < MIN_SPREAD_ROWS:
+        return None
+    off, signal, hat = off_load_space(residuals, shape, design)
+    worst: ChannelGainSpread | None = None
+    for channel in range(signal.shape[1]):
+        x = signal[:, channel].square()
+        x = x - x.mean()
+        squares = off[:, channel].square()
+        power = float(x.square().sum())
+        if not power > 0:
+            continue
+        slope = float((x * squares).sum()) / power
+        left = squares - squares.mean() - slope * x
+        error = math.sqrt(float((x.square() * left.square()).sum())) / power
+        if not error > 0:
+            continue
+        z = slope / error
+        if worst is None or z > worst.z:
+            spread = math.sqrt(max(slope, 0.0)) / max(1 - float(hat[channel, channel]), 1e-12)
+            worst = ChannelGainSpread(channel, z, spread)
+    return worst
+
+
 def channel_gain_warning(gain: ChannelGainMisfit, channel: str) -> str:
     """The warning for a channel whose gain varies along the recording beyond chance (:func:`channel_gain_misfit`)."""
     return (
@@ -506,6 +578,17 @@ def channel_gain_warning(gain: ChannelGainMisfit, channel: str) -> str:
         "straight line: the sensor warming up, or its amplifier or bridge supply drifting; the calibration is the "
         "recording's average and its error bars too small for the sensor at either end: let the sensor warm up and "
         "record again, or calibrate the parts before and after a change apart"
+    )
+
+
+def channel_spread_warning(spread: ChannelGainSpread, channel: str) -> str:
+    """The warning for a channel whose noise grows with its own signal beyond chance (:func:`channel_gain_spread`)."""
+    return (
+        f"channel {channel}'s noise grows with its own reading (z = {spread.z:.1f}), as a gain that varies by about "
+        f"{100 * spread.spread:.2g} % from row to row would make it: the gain changed during the recording (rows given "
+        "out of order say nothing of when), the bridge supply or amplifier is noisy, or the sensor is not linear; the "
+        "error bars take the noise as the same on every row and do not hold: record again with the sensor warmed up, or "
+        "give the rows in recording order so that a change along it is found"
     )
 
 
@@ -939,8 +1022,8 @@ def goodness_of_fit(
         ``goodness/neighbour_misfit_ratio``, ``goodness/neighbour_misfit_z`` and ``goodness/neighbour_batch_rows``
         (the same in an order of neighbouring directions) (without groups, with ``serial_directions``),
         ``goodness/gain_misfit_ratio``, ``goodness/gain_misfit_z``, ``goodness/gain_batch_rows`` and
-        ``goodness/gain_change_pct`` (:func:`channel_gain_misfit`, the worst channel) (without groups, with more
-        channels than axes),
+        ``goodness/gain_change_pct`` (:func:`channel_gain_misfit`, the worst channel), ``goodness/gain_spread_z`` and
+        ``goodness/gain_spread_pct`` (:func:`channel_gain_spread`) (without groups, with more channels than axes),
         ``goodness/pose_equations`` and, where fewer poses were found than counted up to,
         ``goodness/pose_scatter_ratio`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``), ``goodness/alternation_bias`` and
         ``goodness/bias_bars_ratio`` (with ``alternation_bias`` and ``matrix_std``).
@@ -1027,14 +1110,24 @@ def goodness_of_fit(
             # C = (S S^T)^-1 S, so S = (C C^T)^-1 C.
             shape = torch.linalg.solve(matrix @ matrix.T, matrix)
             gain = channel_gain_misfit(residuals[kept], shape, serial_design[kept])
+            gain_changed = False
             if gain is not None:
                 metrics.update(
                     {"goodness/gain_misfit_ratio": gain.misfit.ratio, "goodness/gain_misfit_z": gain.misfit.z,
                      "goodness/gain_batch_rows": float(gain.misfit.batch_rows), "goodness/gain_change_pct": 100 * gain.change}
                 )
-                if gain.misfit.z > SERIAL_MISFIT_Z:
+                gain_changed = gain.misfit.z > SERIAL_MISFIT_Z
+                if gain_changed:
                     name = channel_names[gain.channel] if channel_names is not None else str(gain.channel)
                     warnings.append(channel_gain_warning(gain, name))
+            # In any row order; not with held poses, whose rows share their rounding and any slow noise.
+            widening = channel_gain_spread(residuals[kept], shape, serial_design[kept])
+            if widening is not None:
+                metrics.update({"goodness/gain_spread_z": widening.z, "goodness/gain_spread_pct": 100 * widening.spread})
+                # A gain that changed along the recording widens the residuals too: said once, where found in order.
+                if widening.z > GAIN_SPREAD_Z and not gain_changed:
+                    name = channel_names[widening.channel] if channel_names is not None else str(widening.channel)
+                    warnings.append(channel_spread_warning(widening, name))
     if constraint is not None:
         # Outlying rows have their own check; here a few bumps would read as a mass that is not constant.
         kept = ~outliers[~known]
