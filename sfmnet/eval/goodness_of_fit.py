@@ -495,18 +495,19 @@ def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: to
         noise = float((off[1:, channel] - off[:-1, channel]).square().mean()) / 2
         if not noise > 0:
             continue
+        fitted = signal[:, channel, None]
+        # Per row: y^2, y e and y x; each batch's sums of them are all the statistic needs.
+        columns = torch.cat([fitted.square(), fitted * off[:, channel, None], fitted * design], dim=1)
         for rows in SERIAL_BATCH_ROWS:
             batches = rows_given // rows
             if batches < MIN_SERIAL_BATCHES:
                 break
-            used = batches * rows
-            weights = signal[:used, channel].reshape(batches, rows)
-            power = weights.square().sum(dim=1)
+            sums = columns[: batches * rows].reshape(batches, rows, -1).sum(dim=1)
+            power, projected, moments = sums[:, 0], sums[:, 1], sums[:, 2:]
             seen = power > 0
-            projected = (weights * off[:used, channel].reshape(batches, rows)).sum(dim=1)[seen]
-            statistic = float((projected.square() / power[seen]).sum()) / noise
-            moments = torch.einsum("br,brq->bq", weights, design[:used].reshape(batches, rows, -1))[seen]
-            share = float((inverse @ (moments.T / power[seen]) @ moments).diagonal().sum())
+            power, projected, moments = power[seen], projected[seen], moments[seen]
+            statistic = float((projected.square() / power).sum()) / noise
+            share = float((inverse @ (moments.T / power) @ moments).diagonal().sum())
             dof = int(seen.sum())
             found = SerialMisfit(rows, math.sqrt(statistic / dof), chi_square_z(statistic, dof - share))
             if math.isfinite(found.z) and (worst is None or found.z > worst[1].z):
