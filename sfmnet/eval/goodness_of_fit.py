@@ -472,12 +472,13 @@ def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: to
     A channel ``k`` whose gain is ``1 + g_j`` at row ``j`` reads ``g_j y_jk`` more than the model, ``y_jk = (m_j S)_k``
     its fitted signal, and ``(1 - h_k) g_j y_jk`` of that stays in its residual off the load space, ``e_jk``
     (``h_k = H_kk``, ``H`` the hat matrix of the load space; ``p > n``). Off the load space a row's residual has one
-    covariance whatever its direction, so over a batch ``B`` of consecutive rows the projection
-    ``(sum_B y_jk e_jk)^2 / sum_B y_jk^2`` is ``sigma_k^2 chi2(1)`` for a steady gain, in random orientations too, where
-    the residuals' own batch means cancel. Summed over the batches (cut as :func:`serial_misfit` cuts them) it is
-    ``sigma_k^2 chi2(batches - share)``, ``share = tr((X^T X)^-1 sum_B x_B x_B^T / sum_B y_jk^2)``,
-    ``x_B = sum_B y_jk x_j``, the part of the global parameters (``X``: each row's load and, with offsets, a 1, taken
-    out of ``e_k`` by least squares first) the projections see. ``sigma_k^2`` is taken from successive rows,
+    covariance whatever its direction, so over a batch ``B`` of consecutive rows the projection about the batch's mean,
+    ``(sum_B (y_jk - ybar_B) e_jk)^2 / sum_B (y_jk - ybar_B)^2``, is ``sigma_k^2 chi2(1)`` for a steady gain, in random
+    orientations too, where the residuals' own batch means cancel; a level the batch shares (an offset's drift, rounding
+    common to rows read close together) is left to :func:`serial_misfit`. Summed over the batches (cut as it cuts them)
+    it is ``sigma_k^2 chi2(batches - share)``, ``share = tr((X^T X)^-1 sum_B x_B x_B^T / sum_B (y_jk - ybar_B)^2)``,
+    ``x_B = sum_B (y_jk - ybar_B) x_j``, the part of the global parameters (``X``: each row's load and, with offsets, a
+    1, taken out of ``e_k`` by least squares first) the projections see. ``sigma_k^2`` is taken from successive rows,
     ``sum (e_j+1,k - e_jk)^2 / (2 (f - 1))``, which a slow change of gain barely moves. Returns the channel and batch
     size of largest z, or None where no size gives :data:`MIN_SERIAL_BATCHES` batches.
 
@@ -495,16 +496,22 @@ def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: to
         noise = float((off[1:, channel] - off[:-1, channel]).square().mean()) / 2
         if not noise > 0:
             continue
-        fitted = signal[:, channel, None]
-        # Per row: y^2, y e and y x; each batch's sums of them are all the statistic needs.
-        columns = torch.cat([fitted.square(), fitted * off[:, channel, None], fitted * design], dim=1)
+        fitted, residual = signal[:, channel, None], off[:, channel, None]
+        # Per row: y, e, x, y^2, y e and y x; each batch's sums of them are all the statistic needs.
+        columns = torch.cat([fitted, residual, design, fitted.square(), fitted * residual, fitted * design], dim=1)
+        q = design.shape[1]
         for rows in SERIAL_BATCH_ROWS:
             batches = rows_given // rows
             if batches < MIN_SERIAL_BATCHES:
                 break
             sums = columns[: batches * rows].reshape(batches, rows, -1).sum(dim=1)
-            power, projected, moments = sums[:, 0], sums[:, 1], sums[:, 2:]
-            seen = power > 0
+            mean_signal, summed_residual, summed_design = sums[:, :1] / rows, sums[:, 1], sums[:, 2 : 2 + q]
+            # About each batch's own mean: a level the batch shares (an offset's drift, rounding or slow noise common
+            # to rows read close together) is the serial check's, not a gain's.
+            power = sums[:, 2 + q] - mean_signal[:, 0] * sums[:, 0]
+            projected = sums[:, 3 + q] - mean_signal[:, 0] * summed_residual
+            moments = sums[:, 4 + q :] - mean_signal * summed_design
+            seen = power > 1e-12 * float(sums[:, 2 + q].max())
             power, projected, moments = power[seen], projected[seen], moments[seen]
             statistic = float((projected.square() / power).sum()) / noise
             share = float((inverse @ (moments.T / power) @ moments).diagonal().sum())
@@ -576,9 +583,10 @@ def channel_gain_warning(gain: ChannelGainMisfit, channel: str) -> str:
         f"channel {channel}'s gain changes along the recording (or from row to row): over {gain.misfit.batch_rows} "
         f"consecutive rows its residuals follow its own signal {gain.misfit.ratio:.2f}x as much as independent noise "
         f"explains (z = {gain.misfit.z:.1f}), about {100 * gain.change:+.1f} % from the first row to the last on a "
-        "straight line: the sensor warming up, or its amplifier or bridge supply drifting; the calibration is the "
-        "recording's average and its error bars too small for the sensor at either end: let the sensor warm up and "
-        "record again, or calibrate the parts before and after a change apart"
+        "straight line: the sensor warming up, or its amplifier or bridge supply drifting (readings quantised more "
+        "coarsely than their noise read alike while the mass turns slowly, and then rows read close together miss the "
+        "model together too); the calibration is the recording's average and its error bars too small for the sensor "
+        "at either end: let the sensor warm up and record again, or calibrate the parts before and after a change apart"
     )
 
 
