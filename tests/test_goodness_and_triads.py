@@ -835,8 +835,8 @@ def test_a_channel_warming_up_is_named_by_its_residuals_along_the_recording(warm
     """8 channels, noise 10x apart between channels, 2,000 rows in random orientations, the first channel's gain rising
     3 % over the recording (warming up): the residuals' batch means cancel and the magnitudes move by the channel's
     share of the load space alone, so the session was trusted at 4.9x its bars against the sensor at the end. The
-    channel's residuals times its own signal, in recording order (eq. G1), name it and how far its gain moved; the
-    clean twin passes."""
+    channel's residual off the load space projected on its own signal over consecutive rows (eq. G1) names it and how
+    far its gain moved; the clean twin passes."""
     result = diagnosed(unequal_channel_noise(0, 10.0, rows=2000, warming=warming), refinement="alternation").goodness
     named = [w for w in result.warnings if "'s gain changes along the recording" in w]
     if warming == 0.0:
@@ -850,7 +850,7 @@ def test_a_channel_warming_up_is_named_by_its_residuals_along_the_recording(warm
 
 @pytest.mark.parametrize("warming", [0.0, 0.03])
 def test_a_channel_warming_up_in_shuffled_rows_widens_its_noise_with_its_signal(warming):
-    """The session above with its rows shuffled: recording order says nothing (the gain check scores 3.7, under its
+    """The session above with its rows shuffled: recording order says nothing (the gain check scores 2.9, under its
     limit), and the calibration is the recording's average, 7.9x its bars from the sensor at the end. A gain spread over
     rows widens the channel's residual off the load space in proportion to its signal (eq. G2): z 9.5, and the spread
     read is the drift's own (0.87 % for a uniform 3 %, 0.88 % read). The clean twin shuffled passes."""

@@ -443,12 +443,22 @@ class ChannelGainMisfit(NamedTuple):
     change: float
 
 
-def off_load_space(
-    residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The residuals off the load space, less their least-squares fit on ``design`` (``f x p``), each row's fitted
-    signal ``m_j S`` (``f x p``) and the hat matrix of the load space ``H = S^T (S S^T)^-1 S`` (``p x p``), for
-    :func:`channel_gain_misfit` and :func:`channel_gain_spread`.
+class OffLoadSpace(NamedTuple):
+    """The rows' residuals off the load space (:func:`off_load_space`), for the checks of each channel's gain.
+
+    Attributes:
+        residuals: ``f x p``, off the load space and less their least-squares fit on the design (raw units);
+        signal: ``f x p``, each row's fitted signal ``m_j S``; hat: ``p x p``, ``H = S^T (S S^T)^-1 S``, the hat matrix
+            of the load space.
+    """
+
+    residuals: torch.Tensor
+    signal: torch.Tensor
+    hat: torch.Tensor
+
+
+def off_load_space(residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor) -> OffLoadSpace:
+    """The rows' residuals off the load space, for :func:`channel_gain_misfit` and :func:`channel_gain_spread`.
 
     Off the load space a row's residual has one covariance whatever its direction; along its load it carries the
     row's magnitude noise, which varies with the direction. The fit's own error in the shape and offsets, whatever fit
@@ -462,10 +472,10 @@ def off_load_space(
     hat = shape.T @ torch.linalg.solve(shape @ shape.T, shape)
     off = residuals - residuals @ hat
     off -= design @ torch.linalg.lstsq(design, off).solution
-    return off, signal, hat
+    return OffLoadSpace(off, signal, hat)
 
 
-def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor) -> ChannelGainMisfit | None:
+def channel_gain_misfit(unknown: OffLoadSpace, design: torch.Tensor) -> ChannelGainMisfit | None:
     """How far each channel's gain varies along the recording, beyond what independent noise explains (method §5,
     "A channel's gain along the recording", eq. G1).
 
@@ -483,13 +493,13 @@ def channel_gain_misfit(residuals: torch.Tensor, shape: torch.Tensor, design: to
     size of largest z, or None where no size gives :data:`MIN_SERIAL_BATCHES` batches.
 
     Args:
-        residuals: ``f x p``, the unknown rows' residuals in recording order (raw units); shape: ``S``, ``n x p``;
-            design: ``f x q``, ``X``, each row's fitted load ``m_j`` (its first ``n`` columns) and, with offsets, a 1.
+        unknown: the unknown rows in recording order, off the load space (:func:`off_load_space`); design: ``f x q``,
+            ``X``, the design they were taken less their fit on.
     """
     rows_given = len(design)
     if rows_given <= design.shape[1] + 1 or rows_given // SERIAL_BATCH_ROWS[0] < MIN_SERIAL_BATCHES:
         return None
-    off, signal, hat = off_load_space(residuals, shape, design)
+    off, signal, hat = unknown
     inverse = torch.linalg.inv(design.T @ design)
     worst: tuple[int, SerialMisfit] | None = None
     for channel in range(signal.shape[1]):
@@ -538,7 +548,7 @@ class ChannelGainSpread(NamedTuple):
     spread: float
 
 
-def channel_gain_spread(residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor) -> ChannelGainSpread | None:
+def channel_gain_spread(unknown: OffLoadSpace) -> ChannelGainSpread | None:
     """How far each channel's noise grows with its own signal, in any row order (method §5, "A channel's noise against
     its own signal", eq. G2).
 
@@ -547,16 +557,15 @@ def channel_gain_spread(residuals: torch.Tensor, shape: torch.Tensor, design: to
     whose variance is otherwise the same on every row (:func:`channel_gain_misfit`). The slope ``b`` of ``e_jk^2`` on
     ``y_jk^2`` (least squares with an intercept) is scored against its heteroscedasticity-consistent standard error,
     ``z = b sum_j (x_j - xbar)^2 / sqrt(sum_j (x_j - xbar)^2 r_j^2)``, ``x_j = y_jk^2``, ``r_j`` the regression's
-    residuals, which holds for noise of any tail; one-sided, the largest over the channels. ``s = sqrt(max(b, 0)) / (1 - h_k)``. None where the rows
-    are too few (:data:`MIN_SPREAD_ROWS`).
+    residuals, which holds for noise of any tail; one-sided, the largest over the channels.
+    ``s = sqrt(max(b, 0)) / (1 - h_k)``. None where the rows are too few (:data:`MIN_SPREAD_ROWS`).
 
     Args:
-        residuals: ``f x p``, the unknown rows' residuals (raw units, any order); shape: ``S``, ``n x p``;
-            design: ``f x q``, each row's fitted load ``m_j`` (its first ``n`` columns) and, with offsets, a 1.
+        unknown: the unknown rows off the load space, in any order (:func:`off_load_space`).
     """
-    if len(design) < MIN_SPREAD_ROWS:
+    off, signal, hat = unknown
+    if len(off) < MIN_SPREAD_ROWS:
         return None
-    off, signal, hat = off_load_space(residuals, shape, design)
     worst: ChannelGainSpread | None = None
     for channel in range(signal.shape[1]):
         x = signal[:, channel].square()
@@ -1118,21 +1127,25 @@ def goodness_of_fit(
         if p > matrix.shape[0] and bool(kept.any()):
             # C = (S S^T)^-1 S, so S = (C C^T)^-1 C.
             shape = torch.linalg.solve(matrix @ matrix.T, matrix)
-            gain = channel_gain_misfit(residuals[kept], shape, serial_design[kept])
+            unknown = off_load_space(residuals[kept], shape, serial_design[kept])
+            gain = channel_gain_misfit(unknown, serial_design[kept])
             gain_changed = False
             if gain is not None:
                 metrics.update(
                     {"goodness/gain_misfit_ratio": gain.misfit.ratio, "goodness/gain_misfit_z": gain.misfit.z,
-                     "goodness/gain_batch_rows": float(gain.misfit.batch_rows), "goodness/gain_change_pct": 100 * gain.change}
+                     "goodness/gain_batch_rows": float(gain.misfit.batch_rows),
+                     "goodness/gain_change_pct": 100 * gain.change}
                 )
                 gain_changed = gain.misfit.z > SERIAL_MISFIT_Z
                 if gain_changed:
                     name = channel_names[gain.channel] if channel_names is not None else str(gain.channel)
                     warnings.append(channel_gain_warning(gain, name))
             # In any row order; not with held poses, whose rows share their rounding and any slow noise.
-            widening = channel_gain_spread(residuals[kept], shape, serial_design[kept])
+            widening = channel_gain_spread(unknown)
             if widening is not None:
-                metrics.update({"goodness/gain_spread_z": widening.z, "goodness/gain_spread_pct": 100 * widening.spread})
+                metrics.update(
+                    {"goodness/gain_spread_z": widening.z, "goodness/gain_spread_pct": 100 * widening.spread}
+                )
                 # A gain that changed along the recording widens the residuals too: said once, where found in order.
                 if widening.z > GAIN_SPREAD_Z and not gain_changed:
                     name = channel_names[widening.channel] if channel_names is not None else str(widening.channel)
