@@ -852,7 +852,7 @@ def test_a_channel_warming_up_is_named_by_its_residuals_along_the_recording(warm
 def test_a_channel_warming_up_in_shuffled_rows_widens_its_noise_with_its_signal(warming):
     """The session above with its rows shuffled: recording order says nothing (the gain check scores 2.9, under its
     limit), and the calibration is the recording's average, 7.9x its bars from the sensor at the end. A gain spread over
-    rows widens the channel's residual off the load space in proportion to its signal (eq. G2): z 9.5, and the spread
+    rows widens the channel's residual off the load space in proportion to its signal (eq. G2): z 8.9, and the spread
     read is the drift's own (0.87 % for a uniform 3 %, 0.88 % read). The clean twin shuffled passes."""
     recording = unequal_channel_noise(1, 10.0, rows=2000, warming=warming)
     order = torch.from_numpy(np.random.default_rng(101).permutation(2000))

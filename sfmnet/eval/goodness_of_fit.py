@@ -85,9 +85,11 @@ SERIAL_BATCH_ROWS = (4, 8, 16, 32, 64, 128, 256)
 MIN_SERIAL_BATCHES = 6
 # Rows needed before a channel's noise is judged against its signal (:func:`channel_gain_spread`).
 MIN_SPREAD_ROWS = 50
+# ... its slope's error taken over this many blocks of rows near in direction (blocks of one row under 200 rows).
+SPREAD_BLOCKS = 100
 # ... and the standard score its growth with the signal may reach, on the worst channel. On 60 clean 8-channel sessions
 # (150-4,000 uniform rows; Gaussian, Student-t with 3 and 5 degrees of freedom, channels' noise 100x apart) it was at
-# most 2.7; on bench/goodness_checks.py's shuffled-warming (a gain drifting 3 % over rows given out of order) 4.1-14.9.
+# most 2.9; on bench/goodness_checks.py's shuffled-warming (a gain drifting 3 % over rows given out of order) 4.1-13.9.
 GAIN_SPREAD_Z = 4.0
 # The largest batch size's z may reach this (the largest of seven correlated standard normals: p ~ 1e-3 each).
 SERIAL_MISFIT_Z = 4.0
@@ -548,24 +550,31 @@ class ChannelGainSpread(NamedTuple):
     spread: float
 
 
-def channel_gain_spread(unknown: OffLoadSpace) -> ChannelGainSpread | None:
+def channel_gain_spread(unknown: OffLoadSpace, directions: torch.Tensor | None) -> ChannelGainSpread | None:
     """How far each channel's noise grows with its own signal, in any row order (method §5, "A channel's noise against
     its own signal", eq. G2).
 
     A gain that varies from row to row by ``g_j`` of spread ``s`` (a gain changed partway in rows given in no order, a
     noisy bridge supply) adds ``(1 - h_k)^2 s^2 y_jk^2`` to the variance of channel ``k``'s residual off the load space,
     whose variance is otherwise the same on every row (:func:`channel_gain_misfit`). The slope ``b`` of ``e_jk^2`` on
-    ``y_jk^2`` (least squares with an intercept) is scored against its heteroscedasticity-consistent standard error,
-    ``z = b sum_j (x_j - xbar)^2 / sqrt(sum_j (x_j - xbar)^2 r_j^2)``, ``x_j = y_jk^2``, ``r_j`` the regression's
-    residuals, which holds for noise of any tail; one-sided, the largest over the channels.
+    ``y_jk^2`` (least squares with an intercept) is scored against its standard error robust to unequal variance and
+    to correlation within blocks, ``z = b sum_j (x_j - xbar)^2 / sqrt(sum_B (sum_B (x_j - xbar) r_j)^2)``,
+    ``x_j = y_jk^2``, ``r_j`` the regression's residuals, ``B`` blocks of :data:`SPREAD_BLOCKS`-th of the rows near in
+    direction (:func:`~sfmnet.linalg.directions.neighbour_order`), where rows read close together in time fall too: it
+    holds for noise of any tail and for noise correlated over a slow sweep. One-sided, the largest over the channels.
     ``s = sqrt(max(b, 0)) / (1 - h_k)``. None where the rows are too few (:data:`MIN_SPREAD_ROWS`).
 
     Args:
-        unknown: the unknown rows off the load space, in any order (:func:`off_load_space`).
+        unknown: the unknown rows off the load space, in any order (:func:`off_load_space`); directions: ``f x d``
+            (``d`` = 2 or 3), their unit directions, or None (a wrench's load is no direction) for blocks in row order.
     """
     off, signal, hat = unknown
-    if len(off) < MIN_SPREAD_ROWS:
+    rows = len(off)
+    if rows < MIN_SPREAD_ROWS:
         return None
+    block = max(1, rows // SPREAD_BLOCKS)
+    order = torch.arange(rows) if directions is None else neighbour_order(directions, block)
+    blocks = order[: rows // block * block].reshape(-1, block)
     worst: ChannelGainSpread | None = None
     for channel in range(signal.shape[1]):
         x = signal[:, channel].square()
@@ -576,7 +585,7 @@ def channel_gain_spread(unknown: OffLoadSpace) -> ChannelGainSpread | None:
             continue
         slope = float((x * squares).sum()) / power
         left = squares - squares.mean() - slope * x
-        error = math.sqrt(float((x.square() * left.square()).sum())) / power
+        error = math.sqrt(float((x * left)[blocks].sum(dim=1).square().sum())) / power
         if not error > 0:
             continue
         z = slope / error
@@ -1141,7 +1150,7 @@ def goodness_of_fit(
                     name = channel_names[gain.channel] if channel_names is not None else str(gain.channel)
                     warnings.append(channel_gain_warning(gain, name))
             # In any row order; not with held poses, whose rows share their rounding and any slow noise.
-            widening = channel_gain_spread(unknown)
+            widening = channel_gain_spread(unknown, None if serial_directions is None else serial_directions[kept])
             if widening is not None:
                 metrics.update(
                     {"goodness/gain_spread_z": widening.z, "goodness/gain_spread_pct": 100 * widening.spread}
