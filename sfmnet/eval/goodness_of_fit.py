@@ -560,8 +560,9 @@ def channel_gain_spread(unknown: OffLoadSpace, directions: torch.Tensor | None) 
     ``y_jk^2`` (least squares with an intercept) is scored against its standard error robust to unequal variance and
     to correlation within blocks, ``z = b sum_j (x_j - xbar)^2 / sqrt(sum_B (sum_B (x_j - xbar) r_j)^2)``,
     ``x_j = y_jk^2``, ``r_j`` the regression's residuals, ``B`` blocks of :data:`SPREAD_BLOCKS`-th of the rows near in
-    direction (:func:`~sfmnet.linalg.directions.neighbour_order`), where rows read close together in time fall too: it
-    holds for noise of any tail and for noise correlated over a slow sweep. One-sided, the largest over the channels.
+    direction (:func:`~sfmnet.linalg.directions.neighbour_order`), where rows read close together in time fall too (it
+    held on Student-t noise and on noise correlated over a slow sweep, method §5). One-sided, the largest over the
+    channels.
     ``s = sqrt(max(b, 0)) / (1 - h_k)``. None where the rows are too few (:data:`MIN_SPREAD_ROWS`).
 
     Args:
