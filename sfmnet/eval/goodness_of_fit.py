@@ -459,7 +459,7 @@ class OffLoadSpace(NamedTuple):
     hat: torch.Tensor
 
 
-def off_load_space(residuals: torch.Tensor, shape: torch.Tensor, design: torch.Tensor) -> OffLoadSpace:
+def off_load_space(residuals: torch.Tensor, matrix: torch.Tensor, design: torch.Tensor) -> OffLoadSpace:
     """The rows' residuals off the load space, for :func:`channel_gain_misfit` and :func:`channel_gain_spread`.
 
     Off the load space a row's residual has one covariance whatever its direction; along its load it carries the
@@ -467,11 +467,13 @@ def off_load_space(residuals: torch.Tensor, shape: torch.Tensor, design: torch.T
     made it, is taken out exactly (its share of the batch statistics is counted where they are judged).
 
     Args:
-        residuals: ``f x p`` (raw units); shape: ``S``, ``n x p``; design: ``f x q``, each row's fitted load ``m_j``
-            (its first ``n`` columns) and, with offsets, a 1.
+        residuals: ``f x p`` (raw units); matrix: ``C = (S S^T)^-1 S``, ``n x p``; design: ``f x q``, each row's fitted
+            load ``m_j`` (its first ``n`` columns) and, with offsets, a 1.
     """
+    # C = (S S^T)^-1 S gives S = (C C^T)^-1 C, and H = S^T C.
+    shape = torch.linalg.solve(matrix @ matrix.T, matrix)
     signal = design[:, : shape.shape[0]] @ shape
-    hat = shape.T @ torch.linalg.solve(shape @ shape.T, shape)
+    hat = shape.T @ matrix
     off = residuals - residuals @ hat
     off -= design @ torch.linalg.lstsq(design, off).solution
     return OffLoadSpace(off, signal, hat)
@@ -1118,14 +1120,14 @@ def goodness_of_fit(
     if groups is None and serial_design is not None:
         # Outlying rows have their own check; here they would read as a misfit their batch shares.
         kept = ~known & ~outliers
+        kept_residuals, design = residuals[kept], serial_design[kept]
+        neighbours = None if serial_directions is None else serial_directions[kept]
         orders: dict[str, torch.Tensor | None] = {"serial": None}
-        if serial_directions is not None:
-            orders["neighbour"] = serial_directions[kept]
+        if neighbours is not None:
+            orders["neighbour"] = neighbours
         kept_spread = None if spread is None else spread.rows(kept)
         for order, directions in orders.items():
-            misfit = serial_misfit(
-                residuals[kept], dof[kept], fit_noise, parameters, serial_design[kept], directions, kept_spread
-            )
+            misfit = serial_misfit(kept_residuals, dof[kept], fit_noise, parameters, design, directions, kept_spread)
             if misfit is None:
                 continue
             metrics.update(
@@ -1135,10 +1137,9 @@ def goodness_of_fit(
             if misfit.z > SERIAL_MISFIT_Z:
                 warnings.append(batch_misfit_warning(misfit, by_direction=directions is not None))
         if p > matrix.shape[0] and bool(kept.any()):
-            # C = (S S^T)^-1 S, so S = (C C^T)^-1 C.
-            shape = torch.linalg.solve(matrix @ matrix.T, matrix)
-            unknown = off_load_space(residuals[kept], shape, serial_design[kept])
-            gain = channel_gain_misfit(unknown, serial_design[kept])
+            names = channel_names if channel_names is not None else [str(k) for k in range(p)]
+            unknown = off_load_space(kept_residuals, matrix, design)
+            gain = channel_gain_misfit(unknown, design)
             gain_changed = False
             if gain is not None:
                 metrics.update(
@@ -1148,18 +1149,16 @@ def goodness_of_fit(
                 )
                 gain_changed = gain.misfit.z > SERIAL_MISFIT_Z
                 if gain_changed:
-                    name = channel_names[gain.channel] if channel_names is not None else str(gain.channel)
-                    warnings.append(channel_gain_warning(gain, name))
+                    warnings.append(channel_gain_warning(gain, names[gain.channel]))
             # In any row order; not with held poses, whose rows share their rounding and any slow noise.
-            widening = channel_gain_spread(unknown, None if serial_directions is None else serial_directions[kept])
+            widening = channel_gain_spread(unknown, neighbours)
             if widening is not None:
                 metrics.update(
                     {"goodness/gain_spread_z": widening.z, "goodness/gain_spread_pct": 100 * widening.spread}
                 )
                 # A gain that changed along the recording widens the residuals too: said once, where found in order.
                 if widening.z > GAIN_SPREAD_Z and not gain_changed:
-                    name = channel_names[widening.channel] if channel_names is not None else str(widening.channel)
-                    warnings.append(channel_spread_warning(widening, name))
+                    warnings.append(channel_spread_warning(widening, names[widening.channel]))
     if constraint is not None:
         # Outlying rows have their own check; here a few bumps would read as a mass that is not constant.
         kept = ~outliers[~known]
