@@ -8,7 +8,8 @@ shape and offsets, one 1 kg mass, white noise 1 % of the signal per channel unle
 orientations either sweep continuously (a 100 Hz path over most of the sphere, 6,000 rows; ``short sweep``: the same
 path logged 200 times over a minute), are drawn uniform at random (3,000 rows), or turn about one tilted axis
 (``turntable``, one great circle, 600 rows; ``circle30``, ``circle45``: one circle 30 or 45 degrees off the turntable's
-plane). The ``known`` cases put three known poses along the axes first (a row each; 20 each on the turntable and the
+plane), or turn about two random axes in turn (``two circles``: two great circles of 300 rows each, an accelerometer
+turned about two axes). The ``known`` cases put three known poses along the axes first (a row each; 20 each on the turntable and the
 circles), noise 0.5 % of each channel's span, 600 rows. Each case is clean or carries one
 defect:
 
@@ -86,6 +87,8 @@ CASES = (
     Case("turntable", "known turntable", 6, ""),
     Case("circle30", "known circle 0.5", 6, ""),
     Case("circle45", "known circle 0.707", 6, ""),
+    Case("two-circles", "two circles", 3, ""),
+    Case("two-circles-p6", "two circles", 6, ""),
 )
 
 KNOWN_DIRECTIONS = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -104,6 +107,10 @@ def session(case: Case, seed: int) -> tuple[np.ndarray, np.ndarray | None, torch
         elevation = 1.2 * np.sin(0.31 * time + generator.uniform(0, 2 * np.pi))
         azimuth = 0.47 * time
         directions = np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], 1)
+    elif case.orientations == "two circles":
+        axes = generator.normal(size=(2, 3))
+        axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+        directions = np.concatenate([circle_directions(generator.uniform(0, 2 * np.pi, 300), axis) for axis in axes])
     else:
         directions = generator.normal(size=(30 if case.orientations == "poses" else 3000, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
@@ -190,8 +197,8 @@ def main() -> None:
             trusted.append(calibration.error_bars_trustworthy)
             ratios.append(bars_ratio(calibration, truth, loads is not None))
         silent = sum(t and r > 2 for t, r in zip(trusted, ratios))
-        # Shuffling alone is no defect; one circle of orientations is one, though the case names none.
-        clean = case.defect in ("", "shuffled", "spread10", "gains") and case.name not in ("turntable", "circle30", "circle45")
+        # Shuffling alone is no defect; one or two circles of orientations are one, though the case names none.
+        clean = case.defect in ("", "shuffled", "spread10", "gains") and "circle" not in case.orientations and case.name != "turntable"
         false_alarms = sum(not t for t in trusted) + refused if clean else 0
         span = f"{min(ratios):.2f}-{max(ratios):.2f}" if ratios else "-"
         print(

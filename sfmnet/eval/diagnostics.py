@@ -27,6 +27,7 @@ from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.held_poses import held_pose_clusters
 from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
+from sfmnet.linalg.second_quadric import quadric_monomials, second_quadric_ratio
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, load_error_rms
 from sfmnet.models.linear_calibrator import LinearCalibrator
 
@@ -131,6 +132,7 @@ def calibration_diagnostics(
         if model.constrained and directions is not None and directions.shape[1] == 3 and int((~known).sum()) > 3
         else None,
         channel_names=channels,
+        second_quadric_ratio=second_quadric(model, recording, uncertainty),
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
@@ -261,6 +263,28 @@ def osculating_valley(
         weight,
     )
     return scan, load_error_rms(shape, model.calibration_matrix(), uncertainty, recording.magnitude)
+
+
+def second_quadric(
+    model: LinearCalibrator, recording: CalibrationRecording, uncertainty: CalibrationUncertainty
+) -> float | None:
+    """:func:`~sfmnet.linalg.second_quadric.second_quadric_ratio` of the unknown rows' loads over the magnitude, where only
+    the constant magnitude fixes the calibration and each row's direction was fitted on its own: one constant-magnitude
+    mass, no known loads (they pin the family eq. Q1 leaves free), a joint-likelihood fit (the alternation's bars count
+    each fitted direction's noise as information; the marginal integrates the directions out, and at its low SNR every
+    quadric is within the noise), untied (a few tied poses' means carry little of that noise, and their bars held where
+    they read near 1: method §5, "Two circles of orientations"). None elsewhere, or with no more rows than the
+    quadric's monomials."""
+    if not one_constrained_mass(model, recording) or not model.joint_likelihood or bool(recording.known.any()):
+        return None
+    if model.unknown_poses(recording) is not None or not uncertainty.noise_std > 0:
+        return None
+    matrix, magnitude = model.calibration_matrix(), recording.magnitude
+    points = (recording.readings - model.physical_offset()) @ matrix.T / magnitude
+    if len(points) <= quadric_monomials(points[:1], model.estimate_offset)[0].shape[1]:
+        return None
+    covariance = uncertainty.noise_std**2 * matrix @ matrix.T / magnitude**2
+    return second_quadric_ratio(points, covariance, model.estimate_offset)
 
 
 # Rows within this many standard deviations of a direction's noise (or this angle, radians, at most) are one pose.

@@ -140,6 +140,13 @@ MAX_BIAS_BARS_RATIO = 1.0
 # offsets at direction SNR 19-23 (200 rows; tests/test_goodness_and_triads.py's cap_session, seeds 2-7) the 4 marginal
 # fits 2.1-4.5x their bars differed by 2.3-2.9 and the 2 within 1.4x by 0.35-0.45.
 MAX_REFINEMENT_DISAGREEMENT = 2.0
+# The unknown rows' loads may sit this many times their noise off the best quadric besides the magnitude's sphere
+# (:func:`~sfmnet.linalg.second_quadric.second_quadric_ratio`, eq. Q2) before the calibration is taken as fixed by them:
+# at 1 they lie on one, and the family of calibrations through both (eq. Q1) fits them alike; at 2 half of what the bars
+# count along it is noise. Two great circles of 600 rows (3 and 6 channels, 33 sessions) read 0.96-1.34; 302 untied
+# alternation fits on the sphere and its parts at SNR 50-100 (2 and 3 axes, 3-6 channels) read 3.9 or more, the lowest on
+# a 60-degree cone with 3 channels (method §5, "Two circles of orientations").
+MIN_SECOND_QUADRIC_RATIO = 2.0
 # Known loads (pose means) may sit this many predicted standard errors from where the calibration puts
 # them (a chi-square tail of ~3e-4 for one known pose in 3 axes).
 MAX_KNOWN_LOAD_RATIO = 2.5
@@ -980,6 +987,7 @@ def goodness_of_fit(
     unknown_row_coverage: float | None = None,
     unknown_row_centred_coverage: float | None = None,
     channel_names: list[str] | None = None,
+    second_quadric_ratio: float | None = None,
 ) -> GoodnessOfFit:
     """Run every check on a fitted calibration.
 
@@ -1030,6 +1038,9 @@ def goodness_of_fit(
         poses_found: ``groups`` are poses found in the readings
             (:func:`~sfmnet.eval.diagnostics.held_pose_groups`), not given by a time or pose column.
         channel_names: the channels' names, for the messages (None: their indices).
+        second_quadric_ratio: how far the unknown rows' loads sit off the best second quadric, in their noise
+            (:func:`~sfmnet.eval.diagnostics.second_quadric`); under :data:`MIN_SECOND_QUADRIC_RATIO` the bars are
+            disowned; None: not judged.
 
     Returns:
         Metrics ``goodness/noise_within_groups``, ``goodness/noise_ratio`` and
@@ -1056,7 +1067,8 @@ def goodness_of_fit(
         ``goodness/gain_spread_pct`` (:func:`channel_gain_spread`) (without groups, with more channels than axes),
         ``goodness/pose_equations`` and, where fewer poses were found than counted up to,
         ``goodness/pose_scatter_ratio`` (with ``poses``), ``goodness/refinement_disagreement`` (with ``refinement_disagreement``), ``goodness/alternation_bias`` and
-        ``goodness/bias_bars_ratio`` (with ``alternation_bias`` and ``matrix_std``).
+        ``goodness/bias_bars_ratio`` (with ``alternation_bias`` and ``matrix_std``), ``goodness/second_quadric_ratio``
+        (with ``second_quadric_ratio``).
     """
     p = residuals.shape[1]
     metrics: dict[str, float] = {}
@@ -1290,6 +1302,16 @@ def goodness_of_fit(
                 "the noise across the direction, most along the sensor's weakest axis, and more rows shrink the bars but "
                 "not the bias; hold the mass still at each pose and give a time column (a pose's mean then has one "
                 "direction, sqrt(rows) times sharper), load the sensor more heavily, or set model.refinement=marginal"
+            )
+    if second_quadric_ratio is not None:
+        metrics["goodness/second_quadric_ratio"] = second_quadric_ratio
+        if second_quadric_ratio < MIN_SECOND_QUADRIC_RATIO:
+            warnings.append(
+                f"the rows of unknown load lie within {second_quadric_ratio:.1f}x their noise of a second quadric besides "
+                f"the sphere the magnitude puts them on (under {MIN_SECOND_QUADRIC_RATIO:g}; two circles of orientations, "
+                "a mass turned about two axes only, are one): every calibration of the family through both puts them at "
+                "the magnitude alike, so where the fit stops along it rests on their noise, which the error bars count "
+                "as information; turn the mass about a third axis as well, or give known loads"
             )
     if refinement_disagreement is not None:
         metrics["goodness/refinement_disagreement"] = refinement_disagreement
