@@ -122,3 +122,38 @@ def test_known_loads_pin_the_family_and_the_ratio_is_not_asked(tmp_path):
     assert "goodness/second_quadric_ratio" not in metrics
     error = float((calibration.matrix.to(truth.dtype) - truth).norm() / calibration.matrix_std.to(truth.dtype).norm())
     assert error < 2
+
+
+def unequal_noise_session(seed: int) -> tuple[np.ndarray, torch.Tensor]:
+    """A hostile tester's session: 1,000 rows on two perpendicular great circles, 6 channels, one with 4x the others'
+    span, each channel's noise 2 % of its span (so 4x the others' on that one). The readings and ``C``."""
+    generator = np.random.default_rng(seed)
+    turn, _ = np.linalg.qr(generator.standard_normal((3, 3)))
+    directions = []
+    for axis in turn[:2]:
+        first = np.cross(axis, generator.standard_normal(3))
+        first /= np.linalg.norm(first)
+        angles = generator.uniform(0, 2 * np.pi, 500)
+        directions.append(np.cos(angles)[:, None] * first + np.sin(angles)[:, None] * np.cross(axis, first))
+    shape = generator.standard_normal((3, 6))
+    shape[:, 0] *= 4
+    offset = generator.uniform(-5, 5, 6)
+    span = 2 * MAGNITUDE * np.linalg.norm(shape, axis=0)
+    readings = MAGNITUDE * np.concatenate(directions) @ shape + offset + generator.standard_normal((1000, 6)) * 0.02 * span
+    return readings, calibration_matrix(torch.from_numpy(shape))
+
+
+def test_each_channels_own_noise_places_the_rows_off_the_second_quadric(tmp_path):
+    """Channels of unequal noise taken as one noise misplace it across the load space: on the tester's session (the
+    matrix 70x its bars) the ratio with one noise for all reads 2.3, over the limit; with each channel's noise (the
+    readings off the load space tell the six channels apart) 1.25. Other checks disown this session too (the fit had
+    not converged, and its rows span the sphere poorly); here the ratio is what is tested."""
+    readings, truth = unequal_noise_session(70003)
+    calibration = sfmnet.calibrate(readings, MAGNITUDE, axes=3, run_dir=tmp_path / "run", **{"model.refinement": "alternation"})
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    matrix = calibration.matrix.to(torch.float64)
+    points = (torch.from_numpy(readings) - calibration.offset.to(torch.float64)) @ matrix.T / MAGNITUDE
+    one_noise = calibration.extra["noise_std"] ** 2 * matrix @ matrix.T / MAGNITUDE**2
+    assert second_quadric_ratio(points, one_noise, offsets=True) > MIN_SECOND_QUADRIC_RATIO
+    assert metrics["goodness/second_quadric_ratio"] < 1.5
+    assert any(w.startswith(WARNING) for w in calibration.warnings) and error_over_bars(calibration, truth) > 5

@@ -15,6 +15,7 @@ from sfmnet.eval.goodness_of_fit import (
     untied_extra_poses,
     within_group_noise,
 )
+from sfmnet.linalg.channel_noise import channel_noise
 from sfmnet.linalg.directions import distinct_directions, median_angle_from_poses
 from sfmnet.linalg.factorisation import (
     WARN_RANK_GAP,
@@ -101,6 +102,7 @@ def calibration_diagnostics(
     share = 1.0 if pose_sums is not None else 1 / model.unknown_row_weight(recording)
     # A force's direction is its load's; a wrench's (six axes) is not its load's first axes, so none is judged.
     directions = loads / loads.norm(dim=1, keepdim=True) if loads.shape[1] == direction_dims else None
+    constraint = constraint_terms(model, recording)
     goodness = goodness_of_fit(
         residuals,
         recording.readings,
@@ -113,7 +115,7 @@ def calibration_diagnostics(
         recording.loads[known],
         matrix,
         load_unit,
-        constraint_terms(model, recording),
+        constraint,
         osculating_valley(model, recording, uncertainty),
         distinct_poses(model, recording, loads, uncertainty.noise_std),
         uncertainty.matrix_std,
@@ -132,7 +134,7 @@ def calibration_diagnostics(
         if model.constrained and directions is not None and directions.shape[1] == 3 and int((~known).sum()) > 3
         else None,
         channel_names=channels,
-        second_quadric_ratio=second_quadric(model, recording, uncertainty),
+        second_quadric_ratio=second_quadric(model, recording, uncertainty, constraint),
     )
     metrics.update(goodness.metrics)
     return metrics, [*warnings, *goodness.warnings], goodness
@@ -266,15 +268,19 @@ def osculating_valley(
 
 
 def second_quadric(
-    model: LinearCalibrator, recording: CalibrationRecording, uncertainty: CalibrationUncertainty
+    model: LinearCalibrator,
+    recording: CalibrationRecording,
+    uncertainty: CalibrationUncertainty,
+    constraint: tuple[torch.Tensor, torch.Tensor, float] | None = None,
 ) -> float | None:
     """:func:`~sfmnet.linalg.second_quadric.second_quadric_ratio` of the unknown rows' loads over the magnitude, where only
     the constant magnitude fixes the calibration and each row's direction was fitted on its own: one constant-magnitude
     mass, no known loads (they pin the family eq. Q1 leaves free), a joint-likelihood fit (the alternation's bars count
     each fitted direction's noise as information; the marginal integrates the directions out, and at its low SNR every
     quadric is within the noise), untied (a few tied poses' means carry little of that noise, and their bars held where
-    they read near 1: method §5, "Two circles of orientations"). None elsewhere, or with no more rows than the
-    quadric's monomials."""
+    they read near 1: method §5, "Two circles of orientations"). Each channel's noise is the readings' off the load space
+    where they tell the channels apart (``constraint``, :func:`constraint_terms`; six channels or more for three axes),
+    else the fit's one noise for all. None elsewhere, or with no more rows than the quadric's monomials."""
     if not one_constrained_mass(model, recording) or not model.joint_likelihood or bool(recording.known.any()):
         return None
     if model.unknown_poses(recording) is not None or not uncertainty.noise_std > 0:
@@ -283,7 +289,10 @@ def second_quadric(
     points = (recording.readings - model.physical_offset()) @ matrix.T / magnitude
     if len(points) <= quadric_monomials(points[:1], model.estimate_offset)[0].shape[1]:
         return None
-    covariance = uncertainty.noise_std**2 * matrix @ matrix.T / magnitude**2
+    channels = None if constraint is None else channel_noise(constraint[1], matrix)
+    # Unequal channel noise taken as equal misplaces the noise across the load space: two circles read up to 3.
+    variances = torch.full((matrix.shape[1],), uncertainty.noise_std**2, dtype=matrix.dtype) if channels is None else channels.variances
+    covariance = (matrix * variances) @ matrix.T / magnitude**2
     return second_quadric_ratio(points, covariance, model.estimate_offset)
 
 

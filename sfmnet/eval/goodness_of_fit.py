@@ -143,7 +143,7 @@ MAX_REFINEMENT_DISAGREEMENT = 2.0
 # The unknown rows' loads may sit this many times their noise off the best quadric besides the magnitude's sphere
 # (:func:`~sfmnet.linalg.second_quadric.second_quadric_ratio`, eq. Q2) before the calibration is taken as fixed by them:
 # at 1 they lie on one, and the family of calibrations through both (eq. Q1) fits them alike; at 2 half of what the bars
-# count along it is noise. Two great circles of 600 rows (3 and 6 channels, 33 sessions) read 0.96-1.34; 302 untied
+# count along it is noise. Two great circles of 600 rows (3 and 6 channels, 33 sessions) read 0.96-1.32; 302 untied
 # alternation fits on the sphere and its parts at SNR 50-100 (2 and 3 axes, 3-6 channels) read 3.9 or more, the lowest on
 # a 60-degree cone with 3 channels (method §5, "Two circles of orientations").
 MIN_SECOND_QUADRIC_RATIO = 2.0

@@ -3,9 +3,10 @@
 The magnitude constraint says that each unknown row's load ``x_j = C (z_j - o) / F`` lies on the unit sphere, a
 quadric. If the rows also lie on a second quadric ``q(x) = 0`` (two circles of orientations: ``(a^T x)(b^T x) = 0``
 for a mass turned about two axes only), every quadric of the pencil ``|x|^2 - 1 + t q(x)`` that is an ellipsoid passes
-through them as well, and each is another calibration that puts every row at magnitude ``F``:
+through them as well, and each is another calibration that puts every row at magnitude ``F`` (its loads
+``F (A_t x_j + b_t) = C_t (z_j - o_t)``):
 
-    |x|^2 - 1 + t q(x) = 0  for every row  =>  C_t = A_t C,  o_t = o + ...,  |A_t x_j + b_t| = 1        (Q1)
+    |A_t x_j + b_t|^2 - 1 = c (|x_j|^2 - 1 + t q(x_j)) = 0  =>  C_t = A_t C,  C_t o_t = A_t C o - F b_t   (Q1)
 
 The likelihood along that family is curved only by the rows' noise off the second quadric, so the fit stops wherever
 that noise puts it, and error bars from the information at the fit, which counts that noise as information, do not
