@@ -28,7 +28,7 @@ from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.group_means import group_means
 from sfmnet.linalg.held_poses import held_pose_clusters
 from sfmnet.linalg.osculating_valley import ValleyScan, valley_scan
-from sfmnet.linalg.second_quadric import quadric_monomials, second_quadric_ratio
+from sfmnet.linalg.second_quadric import quadric_exponents, second_quadric_ratio
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, load_error_rms
 from sfmnet.models.linear_calibrator import LinearCalibrator
 
@@ -285,10 +285,10 @@ def second_quadric(
         return None
     if model.unknown_poses(recording) is not None or not uncertainty.noise_std > 0:
         return None
+    if len(recording.readings) <= len(quadric_exponents(recording.rank, model.estimate_offset)):
+        return None
     matrix, magnitude = model.calibration_matrix(), recording.magnitude
     points = (recording.readings - model.physical_offset()) @ matrix.T / magnitude
-    if len(points) <= quadric_monomials(points[:1], model.estimate_offset)[0].shape[1]:
-        return None
     channels = None if constraint is None else channel_noise(constraint[1], matrix)
     # Unequal channel noise taken as equal misplaces the noise across the load space: two circles read up to 3.
     variances = torch.full((matrix.shape[1],), uncertainty.noise_std**2, dtype=matrix.dtype) if channels is None else channels.variances

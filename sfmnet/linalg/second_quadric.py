@@ -27,12 +27,18 @@ import itertools
 import torch
 
 
-def quadric_monomials(points: torch.Tensor, offsets: bool) -> tuple[torch.Tensor, torch.Tensor]:
-    """The monomials a quadric is a combination of, at each point, and their gradients.
+def quadric_exponents(dims: int, offsets: bool) -> list[tuple[int, ...]]:
+    """The exponents of the monomials a calibration's quadric is a combination of, in ``dims`` load axes.
 
     With ``offsets`` every monomial of degree two or less (``1, x_a, x_a x_b``: 10 for ``n = 3``, 6 for ``n = 2``);
     without, the constant and those of degree two (tared readings put the sphere's centre at the origin, so a
     calibration's quadric ``x^T A x - 1`` has no linear part).
+    """
+    return [e for e in itertools.product(range(3), repeat=dims) if sum(e) <= 2 and (offsets or sum(e) != 1)]
+
+
+def quadric_monomials(points: torch.Tensor, offsets: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """The monomials of :func:`quadric_exponents` at each point, and their gradients.
 
     Args:
         points: ``f x n``.
@@ -41,14 +47,12 @@ def quadric_monomials(points: torch.Tensor, offsets: bool) -> tuple[torch.Tensor
         ``values`` (``f x q``) and ``gradients`` (``f x q x n``, ``d phi_i / d x_a``).
     """
     n = points.shape[1]
-    exponents = [e for e in itertools.product(range(3), repeat=n) if sum(e) <= 2 and (offsets or sum(e) != 1)]
-    powers = torch.tensor(exponents, dtype=points.dtype)
+    powers = torch.tensor(quadric_exponents(n, offsets), dtype=points.dtype)
     values = points[:, None, :].pow(powers[None]).prod(dim=2)
-    gradients = torch.zeros(len(points), len(exponents), n, dtype=points.dtype)
+    gradients = torch.zeros(len(points), len(powers), n, dtype=points.dtype)
     for axis in range(n):
-        lowered = (powers[:, axis] - 1).clamp_min(0)
         reduced = powers.clone()
-        reduced[:, axis] = lowered
+        reduced[:, axis] = (powers[:, axis] - 1).clamp_min(0)
         gradients[:, :, axis] = powers[:, axis] * points[:, None, :].pow(reduced[None]).prod(dim=2)
     return values, gradients
 
@@ -57,19 +61,17 @@ def second_quadric_ratio(points: torch.Tensor, covariance: torch.Tensor, offsets
     """How far the points sit off the best second quadric, in their noise (eq. Q2): about 1 on one, large off every one.
 
     Args:
-        points: ``f x n``, the unknown rows' loads over the magnitude (or a held pose's mean), ``x_j = C (z_j - o) / F``:
-            on the unit sphere up to noise.
-        covariance: ``f x n x n`` or ``n x n``, each point's noise (``sigma^2 C C^T / F^2``, over the rows of a pose).
-        offsets: the calibration estimates offsets (the quadric's linear part free; :func:`quadric_monomials`).
+        points: ``f x n``, the unknown rows' loads over the magnitude, ``x_j = C (z_j - o) / F``: on the unit sphere up
+            to noise; more of them than :func:`quadric_exponents` has monomials.
+        covariance: ``n x n``, each point's noise (``C diag(v) C^T / F^2``, ``v`` the channels' noise variances).
+        offsets: the calibration estimates offsets (the quadric's linear part free; :func:`quadric_exponents`).
 
     Returns:
-        ``mu``, the second smallest ratio of the points' spread off a quadric to their noise's (ask with more points
-        than monomials).
+        ``mu``, the second smallest ratio of the points' spread off a quadric to their noise's.
     """
     values, gradients = quadric_monomials(points, offsets)
     spread = values.T @ values
-    covariance = covariance.expand(len(points), -1, -1) if covariance.dim() == 2 else covariance
-    noise = torch.einsum("jia,jab,jkb->ik", gradients, covariance, gradients)
+    noise = torch.einsum("jia,ab,jkb->ik", gradients, covariance, gradients)
     # mu = 1 / nu, nu the eigenvalues of the noise against the spread: the constant has no gradient, so the noise is
     # singular and the spread (points in general position) is not.
     scale, vectors = torch.linalg.eigh(spread)
