@@ -13,6 +13,7 @@ from sfmnet.calibration import calibration_matrix
 from sfmnet.eval.goodness_of_fit import MIN_SECOND_QUADRIC_RATIO
 from sfmnet.linalg.frame import orthogonal_procrustes
 from sfmnet.linalg.second_quadric import quadric_monomials, second_quadric_ratio
+from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
 from sfmnet.simulators.simulation import circle_directions
 
 MAGNITUDE = 9.81
@@ -157,3 +158,39 @@ def test_each_channels_own_noise_places_the_rows_off_the_second_quadric(tmp_path
     assert second_quadric_ratio(points, one_noise, offsets=True) > MIN_SECOND_QUADRIC_RATIO
     assert metrics["goodness/second_quadric_ratio"] < 1.5
     assert any(w.startswith(WARNING) for w in calibration.warnings) and error_over_bars(calibration, truth) > 5
+
+
+def three_channel_session(law: str, snr: float, seed: int) -> tuple[np.ndarray, torch.Tensor]:
+    """``bench/crb_ratio.py --laws --p-equals-n``'s session: a 3-channel sensor with offsets (10 % of the signal), 200
+    rows of unknown load drawn from ``law``, white noise at ``snr``. The readings and ``C``."""
+    datamodule = ForceSensor3DataModule(
+        magnitude=MAGNITUDE, samples=200, channels=3, noise_fraction=1 / snr, known_loads=0, mirror_hint=False,
+        offset_scale=0.1, orientation_law=law, seed=seed, errors={"angle_error_deg": 0.0},
+    )
+    datamodule.setup()
+    return datamodule.data.recordings["rotation"].readings.numpy(), datamodule.data.truth.matrix
+
+
+def test_a_marginal_fit_on_rows_near_a_second_quadric_is_not_trusted(tmp_path):
+    """3 channels over a 60-degree cone at SNR 50 (the bench's seed 0): ``auto`` takes the marginal, whose law learnt
+    on the rows leaves the calibration free along a family much as two circles do, and it stops 6.7x its bars with
+    every other check passing. Its rows read 1.3 (the fit's noise puts its SNR near 50, where the check has power), and
+    the run says so. Rows over the sphere with the same sensor at SNR 20 read 16 and keep their trusted bars; at SNR 5
+    every quadric is within the noise (they read 1.5, with bars that hold), and the check does not run."""
+    readings, truth = three_channel_session("cone", 50, 0)
+    calibration = sfmnet.calibrate(readings, MAGNITUDE, axes=3, run_dir=tmp_path / "cone")
+    assert calibration.extra["refinement"] == "marginal"
+    assert error_over_bars(calibration, truth) > 4
+    assert [w.startswith(WARNING) for w in calibration.warnings] == [True]
+    assert not calibration.error_bars_trustworthy
+    readings, truth = three_channel_session("uniform", 20, 2)
+    sphere = sfmnet.calibrate(readings, MAGNITUDE, axes=3, run_dir=tmp_path / "sphere")
+    assert sphere.extra["refinement"] == "marginal"
+    assert sphere.error_bars_trustworthy and error_over_bars(sphere, truth) < 2
+    metrics = json.loads((tmp_path / "sphere" / "metrics.json").read_text())
+    assert metrics["goodness/second_quadric_ratio"] > 5 * MIN_SECOND_QUADRIC_RATIO
+    readings, truth = three_channel_session("uniform", 5, 2)
+    noisy = sfmnet.calibrate(readings, MAGNITUDE, axes=3, run_dir=tmp_path / "noisy")
+    assert noisy.extra["refinement"] == "marginal"
+    assert noisy.error_bars_trustworthy and error_over_bars(noisy, truth) < 2
+    assert "goodness/second_quadric_ratio" not in json.loads((tmp_path / "noisy" / "metrics.json").read_text())

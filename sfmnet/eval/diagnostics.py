@@ -267,6 +267,14 @@ def osculating_valley(
     return scan, load_error_rms(shape, model.calibration_matrix(), uncertainty, recording.magnitude)
 
 
+# From this SNR (F |s| over the fit's noise) up, a marginal fit's rows are judged by the second quadric's ratio; below
+# it every quadric is within their noise and the ratio tells nothing: at SNR 10 (the fit's 9.5-12 on the sphere) rows
+# over the sphere, hemisphere and band read 1.1-4.2 with 3 channels and 2.2-15 with 6, whether their bars held or not.
+# At SNR 20 and 50 (3 channels, 64 sessions) the marginal's silent failures read 1.3-1.6 and cost 2 of 45 bars that
+# held (method §5, "Two circles of orientations"; bench/crb_ratio.py --laws --p-equals-n).
+SECOND_QUADRIC_MARGINAL_FROM_SNR = 15.0
+
+
 def second_quadric(
     model: LinearCalibrator,
     recording: CalibrationRecording,
@@ -275,19 +283,25 @@ def second_quadric(
 ) -> float | None:
     """:func:`~sfmnet.linalg.second_quadric.second_quadric_ratio` of the unknown rows' loads over the magnitude, where only
     the constant magnitude fixes the calibration and each row's direction was fitted on its own: one constant-magnitude
-    mass, no known loads (they pin the family eq. Q1 leaves free), a joint-likelihood fit (the alternation's bars count
-    each fitted direction's noise as information; the marginal integrates the directions out, and at its low SNR every
-    quadric is within the noise), untied (a few tied poses' means carry little of that noise, and their bars held where
-    they read near 1: method §5, "Two circles of orientations"). Each channel's noise is the readings' off the load space
-    where they tell the channels apart (``constraint``, :func:`constraint_terms`; six channels or more for three axes),
-    else the fit's one noise for all. None elsewhere, or with no more rows than the quadric's monomials."""
-    if not one_constrained_mass(model, recording) or not model.joint_likelihood or bool(recording.known.any()):
+    mass, no known loads (they pin the family eq. Q1 leaves free), untied (a few tied poses' means carry little of that
+    noise, and their bars held where they read near 1: method §5, "Two circles of orientations"), and a joint-likelihood
+    fit (the alternation's bars count each fitted direction's noise as information) or a marginal one from
+    :data:`SECOND_QUADRIC_MARGINAL_FROM_SNR` up (it integrates the directions out, but a law learnt on rows near a
+    second quadric concentrates there and leaves the family as free; below that SNR every quadric is within the
+    noise). Each channel's noise is the readings' off the load space where they tell the channels apart
+    (``constraint``, :func:`constraint_terms`; six channels or more for three axes), else the fit's one noise for all.
+    None elsewhere, or with no more rows than the quadric's monomials."""
+    if not one_constrained_mass(model, recording) or bool(recording.known.any()):
         return None
     if model.unknown_poses(recording) is not None or not uncertainty.noise_std > 0:
         return None
+    matrix, magnitude = model.calibration_matrix(), recording.magnitude
+    # The fit's own SNR, F |s| / noise (a fit gone wrong along the family has a shrunken shape, and reads low).
+    snr = float(model.physical_shape().norm(dim=0).mean()) * magnitude / uncertainty.noise_std
+    if not model.joint_likelihood and snr < SECOND_QUADRIC_MARGINAL_FROM_SNR:
+        return None
     if len(recording.readings) <= len(quadric_exponents(recording.rank, model.estimate_offset)):
         return None
-    matrix, magnitude = model.calibration_matrix(), recording.magnitude
     points = (recording.readings - model.physical_offset()) @ matrix.T / magnitude
     channels = None if constraint is None else channel_noise(constraint[1], matrix)
     # Unequal channel noise taken as equal misplaces the noise across the load space: two circles read up to 3.

@@ -1310,8 +1310,8 @@ def goodness_of_fit(
                 f"the rows of unknown load lie within {second_quadric_ratio:.1f}x their noise of a second quadric besides "
                 f"the sphere the magnitude puts them on (under {MIN_SECOND_QUADRIC_RATIO:g}; two circles of orientations, "
                 "a mass turned about two axes only, are one): every calibration of the family through both puts them at "
-                "the magnitude alike, so where the fit stops along it rests on their noise, which the error bars count "
-                "as information; turn the mass about a third axis as well, or give known loads"
+                "the magnitude alike, so where the fit stops along it rests on their noise and the error bars do not "
+                "describe it; turn the mass about a third axis as well, or give known loads"
             )
     if refinement_disagreement is not None:
         metrics["goodness/refinement_disagreement"] = refinement_disagreement
