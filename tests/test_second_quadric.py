@@ -175,7 +175,7 @@ def test_a_marginal_fit_on_rows_near_a_second_quadric_is_not_trusted(tmp_path):
     """3 channels over a 60-degree cone at SNR 50 (the bench's seed 0): ``auto`` takes the marginal, whose law learnt
     on the rows leaves the calibration free along a family much as two circles do, and it stops 6.7x its bars with
     every other check passing. Its rows read 1.3 (the fit's noise puts its SNR near 50, where the check has power), and
-    the run says so. Rows over the sphere with the same sensor at SNR 20 read 16 and keep their trusted bars; at SNR 5
+    the run says so. The bench's rows over the sphere at SNR 20 (seed 2) read 16 and keep their trusted bars; at SNR 5
     every quadric is within the noise (they read 1.5, with bars that hold), and the check does not run."""
     readings, truth = three_channel_session("cone", 50, 0)
     calibration = sfmnet.calibrate(readings, MAGNITUDE, axes=3, run_dir=tmp_path / "cone")
