@@ -296,9 +296,8 @@ def second_quadric(
     if model.unknown_poses(recording) is not None or not uncertainty.noise_std > 0:
         return None
     matrix, magnitude = model.calibration_matrix(), recording.magnitude
-    # The fit's own SNR, F |s| / noise (a fit gone wrong along the family has a shrunken shape, and reads low).
-    snr = float(model.physical_shape().norm(dim=0).mean()) * magnitude / uncertainty.noise_std
-    if not model.joint_likelihood and snr < SECOND_QUADRIC_MARGINAL_FROM_SNR:
+    # The fit's own SNR (a fit gone wrong along the family has a shrunken shape, and reads low).
+    if not model.joint_likelihood and model.signal_to_noise_at(magnitude, uncertainty.noise_std) < SECOND_QUADRIC_MARGINAL_FROM_SNR:
         return None
     if len(recording.readings) <= len(quadric_exponents(recording.rank, model.estimate_offset)):
         return None

@@ -158,6 +158,11 @@ class LinearCalibrator(nn.Module, ABC):
         """``S`` in raw units per load unit, ``n x p``."""
         return self.shape.detach() * self.reading_scale / self.load_scale.reshape(-1, 1)
 
+    def signal_to_noise_at(self, magnitude: float | torch.Tensor, noise: float) -> float:
+        """``F |s| / noise``: a load of ``magnitude`` over a channel's ``noise`` (raw units), ``|s|`` the mean norm of the
+        shape's columns (one channel's signal per unit load): the SNR ``auto`` and the checks go by. Infinite at no noise."""
+        return float(self.physical_shape().norm(dim=0).mean() * magnitude / noise)
+
     def physical_offset(self) -> torch.Tensor:
         """``o`` in raw units, ``p``."""
         return self.offset.detach() * self.reading_scale

@@ -376,7 +376,7 @@ class ShapeFromMotion(LinearCalibrator):
         if self.constrained:
             self.tie_poses(recording)
             noise, rms = self.closed_form_noise(recording)
-            self.snr = float(self.physical_shape().norm(dim=0).mean() * self.load_scale.max() / noise)
+            self.snr = self.signal_to_noise_at(self.load_scale.max(), noise)
         if self.refinement == "auto":
             self.refinement = self.choose_refinement(recording, rms) if self.constrained else "alternation"
         if self.refinement == "marginal":

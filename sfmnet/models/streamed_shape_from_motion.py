@@ -548,7 +548,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         noise = float((self.singular_values[n:].pow(2).sum() / (self.moments.count * (p - n))).sqrt())
         if noise == 0:
             return math.inf
-        return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / noise
+        return self.signal_to_noise_at(self.data.magnitude, noise)
 
     def signal_to_noise(self) -> float:
         """``F |s| / noise`` with the noise from the last pass's residuals (:func:`residual_noise_variance`, a free direction per
@@ -557,7 +557,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         variance = residual_noise_variance(
             float(self.residual_squares.sum()), self.rows_read * p, self.free_directions, n, (n + self.estimate_offset) * p
         )
-        return float(self.physical_shape().norm(dim=0).mean()) * self.data.magnitude / math.sqrt(variance)
+        return self.signal_to_noise_at(self.data.magnitude, math.sqrt(variance))
 
     def estimator_description(self) -> dict[str, Any]:
         """The streamed refinement that ran, for the calibration file."""
