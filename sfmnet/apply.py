@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import torch
@@ -76,3 +77,13 @@ def apply_command(args: list[str]) -> None:
         overwrite=options.get("overwrite", "false").lower() in ("1", "true", "yes"),
     )
     print(f"wrote {count} rows of loads to {output}")
+    calibration = Calibration.load(Path(options["calibration"]))
+    if not calibration.error_bars_trustworthy:
+        # Its loads are still what the fit gives; the user should not take them as the sensor's without knowing.
+        first = calibration.warnings[0] if calibration.warnings else "the fit failed"
+        first = first if len(first) <= 120 else first[:117].rstrip() + "..."
+        print(
+            f"warning: {options['calibration']} was marked NOT TRUSTWORTHY when it was fitted ({first}; its "
+            "\"warnings\" list every check that failed): these loads may be off by more than its error bars",
+            file=sys.stderr,
+        )

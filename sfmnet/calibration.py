@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -152,9 +153,14 @@ class Calibration:
 
 
 def numbers(raw: dict[str, Any], key: str, path: str | Path, finite: bool = True) -> torch.Tensor:
-    """``raw[key]`` as float64; text, uneven rows, or (where ``finite``) NaN or infinity are one line naming the file."""
+    """``raw[key]`` as float64; text, uneven rows, or (where ``finite``) NaN, infinity or null are one line naming the
+    file. Where not ``finite``, null (an undefined figure, as :func:`~sfmnet.io.write_json_atomic` writes NaN and
+    infinity) reads as NaN."""
+    value = raw[key]
+    if not finite:
+        value = null_as_nan(value)
     try:
-        values = torch.tensor(raw[key], dtype=torch.float64)
+        values = torch.tensor(value, dtype=torch.float64)
     except (TypeError, ValueError, RuntimeError):
         raise SfmnetError(
             f"calibration file {path}: {key} holds something other than numbers (text, null or uneven rows): "
@@ -166,3 +172,12 @@ def numbers(raw: dict[str, Any], key: str, path: str | Path, finite: bool = True
             "give the calibration.json of a successful run"
         )
     return values
+
+
+def null_as_nan(value: Any) -> Any:
+    """``value`` (a number or nested lists of them) with every None as NaN."""
+    if value is None:
+        return math.nan
+    if isinstance(value, list):
+        return [null_as_nan(item) for item in value]
+    return value

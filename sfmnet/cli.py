@@ -11,6 +11,7 @@ import contextlib
 import logging
 import os
 import sys
+import traceback
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -71,13 +72,21 @@ def unwrapped_user_errors() -> Iterator[None]:
         raise cause from None
 
 
-def exit_on_user_error(action: Callable[[], object], refused: Callable[[], None] | None = None) -> None:
+def exit_on_user_error(
+    action: Callable[[], object], refused: Callable[[], None] | None = None, run_dir: Path | None = None
+) -> None:
     """Run ``action``; a user error becomes one line on stderr and exit status 2 (an interrupted fit: 130).
 
     ``refused``: run after a user error other than an interruption (e.g. undo the run directory's claim).
+    ``run_dir``: where a Ctrl-C outside the fit (while results are written) finds the checkpoints to name.
     """
     try:
         action()
+    except KeyboardInterrupt:
+        if debug_enabled():
+            raise
+        print(f"interrupted: {interrupted_outside_fit(run_dir)}", file=sys.stderr)
+        sys.exit(FitInterrupted.exit_status)
     except Exception as error:
         cause = user_error(error)
         if cause is None or debug_enabled():
@@ -87,6 +96,54 @@ def exit_on_user_error(action: Callable[[], object], refused: Callable[[], None]
             refused()
         print(f"{'interrupted' if interrupted else 'error'}: {cause}", file=sys.stderr)
         sys.exit(cause.exit_status if interrupted else 2)
+
+
+def interrupted_outside_fit(run_dir: Path | None) -> str:
+    """What a Ctrl-C outside a fit (reading the data, writing the results) left, and how to go on."""
+    checkpoints = sorted(run_dir.glob("checkpoints/*/last.ckpt")) if run_dir is not None else []
+    if not checkpoints:
+        return "stopped before any fit finished an epoch: run the command again"
+    resume = checkpoints[0] if len(checkpoints) == 1 else run_dir / "checkpoints" / "<method>" / "last.ckpt"
+    return (
+        f"stopped after a fit, while its results were written: {run_dir} may hold only part of them; resume with "
+        f"ckpt_path={resume} (and a new hydra.run.dir) to write them whole"
+    )
+
+
+# The sweep's jobs that failed, by job number: the sweep goes on, and exits with status 2 at the end.
+FAILED_JOBS: list[str] = []
+
+
+def run_sweep_job(action: Callable[[], object], job_dir: Path) -> None:
+    """Run one job of a sweep (``-m``): a failure is one line on stderr and the job's ``error.txt``, and the sweep goes
+    on to its next job (Hydra would stop it, leaving the finished jobs unsummarised); a Ctrl-C stops the sweep."""
+    from sfmnet.training.run_directory import JOB_ERROR_FILE
+
+    try:
+        action()
+    except KeyboardInterrupt:
+        if debug_enabled():
+            raise
+        print(f"interrupted in job {job_dir.name}: {interrupted_outside_fit(job_dir)}", file=sys.stderr)
+        sys.exit(FitInterrupted.exit_status)
+    except Exception as error:
+        cause = user_error(error)
+        if debug_enabled():
+            raise
+        if isinstance(cause, FitInterrupted):
+            print(f"interrupted in job {job_dir.name}: {cause}", file=sys.stderr)
+            sys.exit(cause.exit_status)
+        if cause is not None:
+            message, detail = str(cause), ""
+        else:
+            message = (
+                f"{type(error).__name__}: {error} (a fault in sfmnet, not in your input; the traceback is in "
+                f"{job_dir / JOB_ERROR_FILE})"
+            ).replace("\n", " ")
+            detail = "".join(traceback.format_exception(error))
+        (job_dir / JOB_ERROR_FILE).write_text(f"{message}\n{detail}")
+        print(f"error in job {job_dir.name}: {message}", file=sys.stderr)
+        FAILED_JOBS.append(job_dir.name)
 
 
 def check_train_arguments(args: list[str]) -> None:
@@ -109,18 +166,28 @@ def train_command() -> None:
 
     from sfmnet.training.run import train
 
-    from sfmnet.training.run_directory import discard_refused_run
+    from sfmnet.training.run_directory import discard_refused_run, is_worker, release_run_dir
 
     @hydra.main(version_base="1.3", config_path=config_dir(), config_name="train")
     def task(cfg: DictConfig) -> None:
         # Python's warnings too go to the console and train.log through Hydra's job logging (sfmnet/console.py).
         logging.captureWarnings(True)
         run_dir = Path(HydraConfig.get().runtime.output_dir)
-        # A refused single run gives its directory back; a sweep's jobs keep theirs beside the others.
-        single = HydraConfig.get().mode == RunMode.RUN
-        exit_on_user_error(lambda: train(cfg, run_dir), (lambda: discard_refused_run(run_dir)) if single else None)
+        if HydraConfig.get().mode == RunMode.RUN:
+            try:
+                # A refused single run gives its directory back.
+                exit_on_user_error(lambda: train(cfg, run_dir), lambda: discard_refused_run(run_dir), run_dir)
+            finally:
+                # An interrupted one keeps what it wrote, but not its claim: the directory is free for the next run.
+                if not is_worker():
+                    release_run_dir(run_dir)
+        else:
+            # A sweep's job keeps its directory beside the others, with its error.
+            run_sweep_job(lambda: train(cfg, run_dir), run_dir)
 
     task()
+    if FAILED_JOBS:
+        sys.exit(2)
 
 
 def apply_command() -> None:

@@ -6,6 +6,7 @@ import csv
 import errno
 import io
 import json
+import math
 import os
 import tempfile
 from collections.abc import Iterable
@@ -115,8 +116,22 @@ def save_npz_atomic(path: Path, **arrays: Any) -> None:
     write_bytes_atomic(path, buffer.getvalue())
 
 
+def strict_json_values(payload: Any) -> Any:
+    """``payload`` with every NaN or infinite float as None: JSON has no such numbers, and a strict parser (most
+    outside Python) refuses the ``NaN`` and ``Infinity`` that ``json.dumps`` writes by default."""
+    if isinstance(payload, float):
+        return payload if math.isfinite(payload) else None
+    if isinstance(payload, dict):
+        return {key: strict_json_values(value) for key, value in payload.items()}
+    if isinstance(payload, (list, tuple)):
+        return [strict_json_values(value) for value in payload]
+    return payload
+
+
 def write_json_atomic(path: Path, payload: Any) -> None:
-    write_text_atomic(path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
+    """``payload`` as standard JSON (an undefined figure, NaN or infinite, as ``null``), written atomically."""
+    text = json.dumps(strict_json_values(payload), indent=2, sort_keys=True, allow_nan=False)
+    write_text_atomic(path, text + "\n")
 
 
 def write_csv_atomic(path: Path, header: list[str], rows: Iterable[Iterable[Any]]) -> None:

@@ -38,6 +38,12 @@ from tests.test_csv_and_apply import set_cell
 Action = Callable[[], object]
 
 
+def clock_times(rows: list[list[str]]) -> None:
+    """The time column as a logger's ISO 8601 stamps."""
+    for i, row in enumerate(rows[1:]):
+        row[0] = f"2026-12-07T13:52:{i // 100:02d}.{i % 100:02d}0"
+
+
 def calibrate(tmp_path: Path, *overrides: str, edit=None, known_loads: int = 3) -> Action:
     """Write a simulated session (optionally edited) and return the calibrate_csv run on it."""
     session = tmp_path / "session.csv"
@@ -367,6 +373,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "non-numeric cell": (lambda t: calibrate(t, edit=set_cell(5, 2, "n/a")), r"channel column 's1' of .* is not numeric"),
     "NaN value": (lambda t: calibrate(t, edit=set_cell(7, 3, "nan")), r"1 empty, NaN or infinite reading values \(first: line 7 column s2\)"),
     "infinite value": (lambda t: calibrate(t, edit=set_cell(9, 1, "-inf")), r"1 empty, NaN or infinite reading values \(first: line 9 column s0\)"),
+    # A hostile tester's: the refusal named no remedy.
+    "ISO clock times": (
+        lambda t: calibrate(t, edit=clock_times), r"time column 'time' of .* is not numeric: .*\(dates or clock times: give times as numbers of seconds"
+    ),
     # A hostile tester's: calibrated in an arbitrary frame labelled fx, fy, fz (175 % off, trusted, no warning).
     "load columns named, empty on every row": (
         lambda t: calibrate(t, known_loads=0),

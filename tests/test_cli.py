@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import shutil
@@ -143,3 +144,35 @@ def test_installed_wheel_finds_its_configs(tmp_path: Path):
     )
     assert result.returncode == 0, result.stderr
     assert (elsewhere / "run" / "calibration.json").is_file()
+
+
+def test_a_sweep_goes_on_past_a_failed_job_and_says_which_failed(tmp_path: Path):
+    """Hydra stops a sweep at a job's error (a hostile tester's: the jobs after it never ran, no summary was written)."""
+    sweep_dir = tmp_path / "sweep"
+    result = sfmnet("train", "-m", "data.motion_span=1,2", "trainer.max_epochs=2", f"hydra.sweep.dir={sweep_dir}", *QUIET)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "error in job 0: " in result.stderr and "the loads are collinear or coplanar" in result.stderr
+    assert "collinear" in (sweep_dir / "0" / "error.txt").read_text()
+    assert (sweep_dir / "1" / "metrics.json").is_file() and not (sweep_dir / "0" / "metrics.json").exists()
+    assert "1 of 2 jobs failed (job 0)" in result.stdout
+    with (sweep_dir / "sweep.csv").open() as stream:
+        assert [row["job"] for row in csv.DictReader(stream)] == ["1"]
+
+
+def test_ctrl_c_after_the_fit_is_one_line_naming_the_checkpoint(tmp_path: Path, capsys: pytest.CaptureFixture):
+    """A Ctrl-C while the results are written (after the fit's own handler) was a traceback of 100 lines."""
+    from sfmnet.cli import exit_on_user_error
+
+    def interrupted() -> None:
+        raise KeyboardInterrupt
+
+    with pytest.raises(SystemExit) as stopped:
+        exit_on_user_error(interrupted, run_dir=tmp_path)
+    assert stopped.value.code == 130 and "run the command again" in capsys.readouterr().err
+    checkpoint = tmp_path / "checkpoints" / "shape_from_motion" / "last.ckpt"
+    checkpoint.parent.mkdir(parents=True)
+    checkpoint.write_bytes(b"")
+    with pytest.raises(SystemExit) as stopped:
+        exit_on_user_error(interrupted, run_dir=tmp_path)
+    message = capsys.readouterr().err
+    assert stopped.value.code == 130 and message.startswith("interrupted: stopped after a fit") and f"ckpt_path={checkpoint}" in message

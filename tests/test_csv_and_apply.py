@@ -205,3 +205,62 @@ def test_trustworthy_bars_beside_warnings_say_the_warnings_are_not_about_them():
     assert "the 2 warnings below: about the data or the estimator chosen, not the bars" in warned[-1]
     disowned = trust_lines({**metrics, "error_bars_trustworthy": 0.0}, ["a", "b", "c"], "N", 9.81, 3, warnings=1)
     assert "NOT TRUSTWORTHY" in disowned[-1] and "not the bars" not in disowned[-1]
+
+
+@pytest.mark.parametrize("streamed", [False, True], ids=["in-memory", "streamed"])
+def test_a_copied_or_computed_channel_is_refused_in_one_line(tmp_path: Path, streamed: bool):
+    """A hostile tester's: s3 an exact affine function of s2 crashed in the channel noise (a traceback), or, streamed,
+    calibrated as if it had noise of its own."""
+    def computed(rows):
+        for row in rows[1:]:
+            row[4] = f"{2 * float(row[3]) + 1:.9f}"
+
+    session = tmp_path / "session.csv"
+    write_session(session, edit=computed)
+    experiment = ["experiment=calibrate_stream"] if streamed else []
+    with pytest.raises(SfmnetError, match="channels s2, s3 .*are linear functions of one another"):
+        train(csv_config(session, *experiment, *QUIET), tmp_path / "run")
+
+
+def test_apply_says_when_the_calibration_was_not_trustworthy(tmp_path: Path):
+    session = tmp_path / "session.csv"
+    write_session(session)
+    run = tmp_path / "run"
+    train(csv_config(session, *QUIET), run)
+    trusted = sfmnet("apply", f"calibration={run / 'calibration.json'}", f"input={session}", f"output={tmp_path / 'a.csv'}")
+    assert trusted.returncode == 0 and "NOT TRUSTWORTHY" not in trusted.stderr
+    marked = json.loads((run / "calibration.json").read_text())
+    marked.update(error_bars_trustworthy=False, warnings=["the known loads sit 3.1x the noise from the fit"])
+    (tmp_path / "marked.json").write_text(json.dumps(marked))
+    result = sfmnet("apply", f"calibration={tmp_path / 'marked.json'}", f"input={session}", f"output={tmp_path / 'b.csv'}")
+    assert result.returncode == 0 and (tmp_path / "b.csv").is_file()
+    assert "NOT TRUSTWORTHY when it was fitted (the known loads sit 3.1x the noise from the fit;" in result.stderr
+
+
+def test_json_files_hold_no_nan(tmp_path: Path):
+    """An undefined figure is null, which every JSON parser reads (NaN is Python's own), and reads back as NaN."""
+    from sfmnet.calibration import Calibration
+    from sfmnet.io import write_json_atomic
+
+    write_json_atomic(tmp_path / "m.json", {"auroc": math.nan, "bars": [[1.0, math.inf]], "rows": 3})
+    strict = json.loads((tmp_path / "m.json").read_text(), parse_constant=lambda name: pytest.fail(f"{name} in JSON"))
+    assert strict == {"auroc": None, "bars": [[1.0, None]], "rows": 3}
+    session = tmp_path / "session.csv"
+    write_session(session)
+    train(csv_config(session, *QUIET), tmp_path / "run")
+    saved = json.loads((tmp_path / "run" / "calibration.json").read_text())
+    saved["matrix_std"][0][0] = None
+    (tmp_path / "c.json").write_text(json.dumps(saved))
+    assert math.isnan(float(Calibration.load(tmp_path / "c.json").matrix_std[0, 0]))
+
+
+def test_a_corrupt_cell_far_outside_its_column_is_named(tmp_path: Path):
+    """A hostile tester's 0xFFFFFFFF in one cell took the closed form over, and the run blamed the orientations
+    ("the loads are collinear or coplanar"), sending the user to record again."""
+    def overflow(rows):
+        rows[41][3] = "4294967295"
+
+    session = tmp_path / "session.csv"
+    write_session(session, edit=overflow)
+    with pytest.raises(SfmnetError, match=r"1 reading values over 1e\+04 times .* \(first: line 42 column s2 \(4.29e\+09\)\)"):
+        train(csv_config(session, *QUIET), tmp_path / "run")

@@ -290,6 +290,11 @@ def test_imu_accelerometer_matches_the_triad_baseline(tmp_path: Path):
     assert ours <= 1.25 * baseline and ours < 0.005
     calibration = json.loads((tmp_path / "imu" / "calibration.json").read_text())
     assert calibration["load_unit"] == "m/s^2" and all(s > 0 for row in calibration["matrix_std"] for s in row)
+    # No known load: the frame is the channels' own, each axis nearest its channel (C symmetric with positive gains),
+    # so right-handed as the accelerometer's axes are, not a mirror image half the time.
+    matrix = np.array(calibration["matrix"])
+    assert calibration["frame"].startswith("channels") and np.linalg.det(matrix) > 0
+    assert np.abs(matrix - matrix.T).max() < 1e-3 * np.abs(matrix).max() and (np.linalg.eigvalsh(matrix) > 0).all()
     # The whole stream, hand motion included, as every row was taken before: flagged, not silently wrong.
     cfg = compose_config(
         ["experiment=imu_accelerometer", "data.static_intervals=false",

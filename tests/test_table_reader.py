@@ -35,6 +35,11 @@ def semicolons_and_decimal_commas(rows: list[list[str]], path: Path) -> None:
     path.write_text("".join(";".join(cell.replace(".", ",") for cell in row) + "\n" for row in rows))
 
 
+def excel_separator_line(rows: list[list[str]], path: Path) -> None:
+    """Excel's ``sep=;`` first line naming the separator (a hostile tester's: read as a one-column header)."""
+    path.write_text("sep=;\n" + "".join(";".join(cell.replace(".", ",") for cell in row) + "\n" for row in rows))
+
+
 def unicode_text(rows: list[list[str]], path: Path) -> None:
     """Excel's "Unicode Text": UTF-16 with its byte-order mark, tab-separated."""
     path.write_text("".join("\t".join(row) + "\n" for row in rows), encoding="utf-16")
@@ -61,6 +66,7 @@ def tab_separated(rows: list[list[str]], path: Path) -> None:
 VARIANTS: dict[str, tuple[Callable[[list[list[str]], Path], None], str]] = {
     "BOM": (with_bom, "variant.csv"),
     "semicolons and decimal commas": (semicolons_and_decimal_commas, "variant.csv"),
+    "Excel's sep= line": (excel_separator_line, "variant.csv"),
     "UTF-16 with tabs": (unicode_text, "variant.csv"),
     "quoted cells": (quoted, "variant.csv"),
     "empty rows": (with_empty_rows, "variant.csv"),

@@ -145,7 +145,8 @@ def check_training_vectors(data: SensorimotorData) -> None:
     if constant:
         raise SfmnetError(
             f"sensor column {', '.join(constant)} is constant in the training data: it carries no information; "
-            "leave it out of data.sensor_columns, or record longer or more varied runs"
+            "leave it out of data.sensor_columns (a CSV log), or record longer or more varied runs (the simulated "
+            "robot: more data.steps or data.train_rooms)"
         )
     columns = len(data.columns)
     if len(sensors) <= columns:

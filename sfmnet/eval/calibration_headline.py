@@ -70,6 +70,10 @@ def trust_lines(
         )
         if "matrix_std_frame_share" in metrics:
             lines.append(frame_line(metrics["matrix_std_frame_share"], int(metrics["known_load_rows"])))
+    elif estimator and str(estimator.get("frame", "")).startswith("channels"):
+        lines.append(
+            "known loads  none given: the load frame is the channels' own, each axis nearest its channel (magnitudes are right)"
+        )
     else:
         lines.append("known loads  none given: the load frame is arbitrary (magnitudes are right)")
     if metrics.get("error_bars_trustworthy", 1.0):

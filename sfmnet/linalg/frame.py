@@ -42,6 +42,20 @@ def orthogonal_procrustes(source: torch.Tensor, target: torch.Tensor) -> torch.T
     return u @ vt
 
 
+def channel_frame_rotation(matrix: torch.Tensor) -> torch.Tensor:
+    """The orthogonal ``R`` (``n x n``) that turns a square calibration ``C`` (``n x n``: as many channels as axes) in
+    an arbitrary frame into its channels' own: ``R^T C = V Sigma V^T``, symmetric positive definite, from
+    ``C = U Sigma V^T`` (the polar decomposition), so ``R = U V^T``.
+
+    With no known load the data fix ``C`` only up to an orthogonal transform, a mirror included. Of those, this one
+    puts each load axis nearest its own channel (an accelerometer's or magnetometer's axes are its channels, up to
+    small misalignments), with positive gains, and so is right-handed wherever the channels are. ``M <- M R``,
+    ``S <- R^T S`` as for :func:`frame_rotation`.
+    """
+    u, _, vt = torch.linalg.svd(matrix)
+    return u @ vt
+
+
 def median_per_load(estimated_loads: torch.Tensor, known_loads: torch.Tensor) -> torch.Tensor:
     """Each row's recovered load replaced by the median (per axis) over the rows given the same known load: ``k x n``.
 

@@ -11,6 +11,7 @@ from torch import nn
 from sfmnet.calibration import Calibration, calibration_matrix
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.data.rows import IntervalSums
+from sfmnet.linalg.frame import channel_frame_rotation
 from sfmnet.linalg.uncertainty import CalibrationUncertainty, calibration_uncertainty
 from sfmnet.models.contracts import FitMode
 
@@ -60,6 +61,8 @@ class LinearCalibrator(nn.Module, ABC):
         self.register_buffer("load_scale", None)
         self.singular_values: torch.Tensor | None = None
         self.frame_fixed = True
+        # Without known loads, whether the frame was turned to the channels' own (:meth:`turn_to_channels`).
+        self.frame_of_channels = False
         self.coverage = float("nan")
         # What the fit noticed on the way (e.g. a glitch left out of its start), reported beside its warnings.
         self.notes: list[str] = []
@@ -138,7 +141,23 @@ class LinearCalibrator(nn.Module, ABC):
         return {}
 
     def frame_description(self) -> str:
-        return "known_loads" if self.frame_fixed else "arbitrary (no known loads: correct up to an orthogonal transform)"
+        if self.frame_fixed:
+            return "known_loads"
+        if self.frame_of_channels:
+            return "channels (no known loads: each axis nearest its own channel, C symmetric; right-handed where the channels are)"
+        return "arbitrary (no known loads: correct up to an orthogonal transform)"
+
+    @torch.no_grad()
+    def turn_to_channels(self) -> None:
+        """Without known loads and with as many channels as axes, turn the arbitrary frame into the channels' own
+        (:func:`~sfmnet.linalg.frame.channel_frame_rotation`); else leave it."""
+        self.frame_of_channels = False
+        matrix = self.calibration_matrix()
+        if self.frame_fixed or matrix.shape[0] != matrix.shape[1]:
+            return
+        rotation = channel_frame_rotation(matrix)
+        self.shape.copy_(rotation.T @ self.shape)
+        self.frame_of_channels = True
 
     def report_recording(self, recording: CalibrationRecording) -> CalibrationRecording:
         """The rows the results (error bars, residuals, figures) are computed on: the training recording."""

@@ -1053,12 +1053,15 @@ class ShapeFromMotion(LinearCalibrator):
 
         Training then keeps that frame: the known-load term holds it, and with ``n - 1``
         known loads the mirror image is a discrete jump no gradient step makes. Without
-        known loads the frame stays arbitrary (``frame_fixed`` is False). A start from known
-        loads is in their frame already.
+        known loads the frame stays arbitrary (``frame_fixed`` is False), turned to the channels' own where there
+        are as many as axes (:meth:`turn_to_channels`). A start from known loads is in their frame already.
         """
         known = recording.known
         self.frame_fixed = bool(known.any())
-        if not self.frame_fixed or recording.direction_maps is not None:
+        if not self.frame_fixed:
+            self.turn_to_channels()
+            return
+        if recording.direction_maps is not None:
             return
         hint = recording.mirror_hint
         hint_motion = None

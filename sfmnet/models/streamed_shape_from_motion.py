@@ -12,6 +12,7 @@ from sfmnet.data.recording import CalibrationRecording, empty_load_columns, firs
 from sfmnet.data.rows import IntervalSums, RowBlock, StreamedRecording
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.anderson import AndersonAcceleration
+from sfmnet.linalg.channel_dependence import dependent_channels, dependent_channels_message
 from sfmnet.linalg.factorisation import (
     design_leverage,
     ellipsoid_from_coefficients,
@@ -131,8 +132,8 @@ class StreamedShapeFromMotion(LinearCalibrator):
     # it, so a resumed fit keeps the passes it finished and reads the interrupted one again.
     PASS_STATE = (
         "passes", "converged", "sample", "first_partial_row", "known", "centre", "singular_values", "affine_shape",
-        "projection", "coverage", "frame_fixed", "reading_scale", "load_scale", "closed_form_scale", "residual_squares",
-        "interval_readings", "interval_residuals", "metric_screen", "metric_failure", "metric_left_out",
+        "projection", "coverage", "frame_fixed", "frame_of_channels", "reading_scale", "load_scale", "closed_form_scale",
+        "residual_squares", "interval_readings", "interval_residuals", "metric_screen", "metric_failure", "metric_left_out",
     )
 
     def get_extra_state(self) -> dict[str, object]:
@@ -353,6 +354,10 @@ class StreamedShapeFromMotion(LinearCalibrator):
         elif self.passes == 1:
             if not self.solve_metric():
                 return
+            # After the metric's solve, which says first where the loads do not span the load space.
+            dependent = dependent_channels(self.moments.centred_cross(), int(self.moments.count), self.rank)
+            if dependent:
+                raise SfmnetError(dependent_channels_message([self.data.channels[k] for k in dependent], ""))
         elif not self.converged:
             self.solve_alternation()
         self.passes += 1
@@ -456,9 +461,11 @@ class StreamedShapeFromMotion(LinearCalibrator):
         return True
 
     def orient(self) -> None:
-        """Procrustes onto the known loads (mirror picked by the hint row with ``n - 1`` of them)."""
+        """Procrustes onto the known loads (mirror picked by the hint row with ``n - 1`` of them); without them, the
+        channels' own frame where there are as many as axes (:meth:`turn_to_channels`)."""
         self.frame_fixed = len(self.known) > 0
         if not self.frame_fixed:
+            self.turn_to_channels()
             return
         hint = self.data.mirror_hint
         hint_motion = self.motion_of(self.data.hint_reading[None]) if hint is not None else None

@@ -15,8 +15,9 @@ from sfmnet.preprocessing.row_repeats import row_repeats
 from sfmnet.preprocessing.static_intervals import StaticIntervals
 from sfmnet.preprocessing.stuck_channels import stuck_readings
 from sfmnet.readers.static_rows import fitted_rows, static_settings
-from sfmnet.readers.table_file import Table, check_finite, read_table
+from sfmnet.readers.table_file import Table, check_far_cells, check_finite, read_table
 from sfmnet.errors import SfmnetError
+from sfmnet.linalg.channel_dependence import dependent_channels, dependent_channels_message
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.linalg.wrench import STANDARD_GRAVITY, wrench_map
 
@@ -130,6 +131,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             )
         readings = table.numeric(channels, "channel")
         check_finite(readings, channels, table, "reading")
+        check_far_cells(readings, channels, table, "reading")
         # The range, not the standard deviation: that of a column of 1.234 is ~1e-13 in floating point, not 0.
         constant = [name for name, spread in zip(channels, np.ptp(readings, axis=0)) if spread == 0]
         if constant:
@@ -147,6 +149,12 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             )
         if self.load_columns and np.isnan(loads).all():
             raise SfmnetError(empty_load_columns(self.load_columns, str(self.path)))
+        # The rows of unknown load: where they span fewer dimensions than the load space, the fit says why.
+        unknown = readings[np.isnan(loads).all(axis=1)]
+        centred = torch.from_numpy(unknown - unknown.mean(axis=0))
+        dependent = dependent_channels(centred.T @ centred, len(unknown), len(self.axes))
+        if dependent:
+            raise SfmnetError(dependent_channels_message([channels[k] for k in dependent], f" of {self.path}"))
         groups, labels, time = None, None, None
         if self.group_column:
             labels = table.numeric([self.group_column], "group")[:, 0]

@@ -26,6 +26,9 @@ SEPARATORS = ("\t", ";", ",")
 # A cell refused as a number that would be one with a decimal point for its comma, e.g. '1,23' quoted in a CSV.
 DECIMAL_COMMA = re.compile(r"[-+]?\d*,\d+")
 
+# Excel's first line naming the separator, e.g. ``sep=;``.
+EXCEL_SEPARATOR_LINE = re.compile(r"sep=(.)")
+
 # A line number and the cells of that row (whitespace stripped); a quoted cell may run over several lines.
 Record = tuple[int, list[str]]
 
@@ -37,6 +40,8 @@ class DelimitedFile:
     path: Path
     encoding: str
     separator: str
+    # The file opens with Excel's ``sep=;`` line, which names the separator and is no part of the table.
+    separator_line: bool = False
 
     @property
     def decimal_comma(self) -> bool:
@@ -69,7 +74,7 @@ class DelimitedFile:
                 except UnicodeDecodeError:
                     raise undecodable(self.path, self.encoding) from None
                 cells = [cell.strip() for cell in row]
-                if any(cells):
+                if any(cells) and not (self.separator_line and line == 1):
                     yield line, cells
                 line = reader.line_num + 1
 
@@ -121,6 +126,9 @@ def open_delimited(path: Path) -> DelimitedFile:
             lines = list(itertools.islice((line for line in stream if line.strip()), 2))
     except UnicodeDecodeError:
         raise undecodable(path, encoding) from None
+    named = EXCEL_SEPARATOR_LINE.fullmatch(lines[0].strip()) if lines else None
+    if named:
+        return DelimitedFile(path, encoding, named.group(1), separator_line=True)
     return DelimitedFile(path, encoding, sniff_separator(lines))
 
 

@@ -29,13 +29,16 @@ def special_kind(path: Path) -> str | None:
 def check_input_file(path: Path, option: str, expected: str) -> Path:
     """``path`` if it is a regular file that exists; else one line naming what it is and the ``option`` to fix.
 
-    ``expected`` says what the option needs, e.g. ``a file (.csv, .npy or .npz)``.
+    ``expected`` says what the option needs, e.g. ``a file (.csv, .npy or .npz)``. A leading ``~`` is the home
+    folder, as a shell would read it unquoted.
     """
-    path = Path(path)
+    path = Path(path).expanduser()
     try:
         path.stat()
     except FileNotFoundError:
-        raise SfmnetError(f"{path} does not exist: check {option}") from None
+        # A relative path is taken from where the command runs, which a user who moved elsewhere may not expect.
+        where = "" if path.is_absolute() else f" (relative to {Path.cwd()}, the folder you run in)"
+        raise SfmnetError(f"{path} does not exist{where}: check {option}") from None
     except PermissionError:
         raise SfmnetError(f"{path} cannot be reached (permission denied): check {option} and the folders' permissions") from None
     except OSError as error:

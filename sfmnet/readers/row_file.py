@@ -144,7 +144,7 @@ class RowFileDataModule(L.LightningDataModule):
 
     def open_rows(self) -> tuple[NpyLayout, list[str]]:
         """The file's layout and its column names (a CSV converted to ``.npy`` first)."""
-        check_input_file(self.path, "data.path", "a .npy or .csv of rows")
+        self.path = check_input_file(self.path, "data.path", "a .npy or .csv of rows")
         if self.path.suffix in WHITESPACE_SUFFIXES:
             raise SfmnetError(
                 f"{self.path} is a {self.path.suffix} table, which is read whole: a streamed run reads a .csv or a .npy "

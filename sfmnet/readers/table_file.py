@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import difflib
+import re
 import zipfile
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -21,6 +23,11 @@ def missing_column(name: str, role: str, path: Path, names: list[str]) -> Sfmnet
     close = same_but_case or difflib.get_close_matches(name, names, n=1)
     hint = f" (did you mean '{close[0]}'?)" if close else ""
     return SfmnetError(f"{role} column '{name}' is not in {path}{hint}; its columns are: {', '.join(names)}")
+
+
+# A cell this many times its column's spread from the column's median is corrupt: no recording's readings span that
+# range with 90 % of them inside one ten-thousandth of it.
+FAR_CELL_SPREADS = 1e4
 
 
 @dataclass(frozen=True)
@@ -196,7 +203,7 @@ def _read_csv(path: Path) -> Table:
         if any(value is None for value in values):
             bad = [(line, cell) for line, cell, value in zip(lines, cells, values) if value is None]
             text[name] = [f"line {line}: '{cell}'" for line, cell in bad[:3]] + ([f"... {len(bad)} cells"] if len(bad) > 3 else [])
-            hints[name] = decimal_comma_hint(cell for _, cell in bad)
+            hints[name] = decimal_comma_hint(cell for _, cell in bad) or clock_time_hint(cell for _, cell in bad)
             cells_of[name] = cells
             if len(bad) < len(cells) / 2:
                 corrupt.add(name)
@@ -213,6 +220,31 @@ def check_finite(values: np.ndarray, names: list[str], table: Table, role: str) 
     refuse_cells(
         np.abs(values) > IMPLAUSIBLE, values, names, table, f"{role} values beyond {IMPLAUSIBLE:.0e}",
         "a corrupt cell or a unit slip; repair those rows", True,
+    )
+
+
+# A date or a clock time as loggers write them: 2026-12-07T13:52:41, 2026-12-07 13:52, 13:52:41.250.
+CLOCK_TIME = re.compile(r"(\d{4}-\d{2}-\d{2}([T ]\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?)?.*|\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?)")
+
+
+def clock_time_hint(cells: Iterable[str]) -> str:
+    """What to do when refused ``cells`` are dates or clock times (a time column must be numbers)."""
+    if any(CLOCK_TIME.fullmatch(cell) for cell in cells):
+        return " (dates or clock times: give times as numbers of seconds, e.g. from the first row, or as Unix time)"
+    return ""
+
+
+def check_far_cells(values: np.ndarray, names: list[str], table: Table, role: str) -> None:
+    """Refuse cells :data:`FAR_CELL_SPREADS` times their column's spread from its median (``values``: ``table``'s
+    columns ``names``), the spread the 5th to 95th percentile of the column (a few corrupt cells cannot widen it): a
+    corrupted cell that far out takes the closed form's subspace over, and the fit then blames the orientations (a
+    hostile tester's 0xFFFFFFFF in counts: "the loads are collinear or coplanar")."""
+    low, median, high = np.percentile(values, [5, 50, 95], axis=0)
+    spread = np.maximum(high - low, np.finfo(float).tiny)
+    refuse_cells(
+        np.abs(values - median) > FAR_CELL_SPREADS * spread, values, names, table,
+        f"{role} values over {FAR_CELL_SPREADS:.0e} times their column's spread (5th to 95th percentile) from its median",
+        "corrupt cells (an overflow, a dropped packet, a unit slip): repair or remove those rows", True,
     )
 
 

@@ -14,6 +14,7 @@ Run directory::
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -198,6 +199,10 @@ def headline(name: str, metrics: dict[str, float], data: SensorimotorData) -> st
                 f", direction {metrics[f'{command.name}_direction_accuracy']:.3f}"
             )
         parts.append(part)
-    parts.append(f"confidence AUROC {metrics['confidence_auroc']:.2f}")
+    auroc = metrics["confidence_auroc"]
+    # Undefined where every held-out command was right (or every one wrong): nothing to rank.
+    parts.append(
+        f"confidence AUROC {auroc:.2f}" if math.isfinite(auroc) else "confidence AUROC undefined (no wrong and right commands to rank)"
+    )
     parts.append(f"subspace angle to PCA {metrics['subspace_angle_deg']:.2f} deg")
     return f"  {name}: " + "; ".join(parts)

@@ -20,6 +20,8 @@ from sfmnet.errors import SfmnetError
 from sfmnet.io import check_writable_dir, write_error
 
 LOCK_NAME = ".sfmnet-lock"
+# A sweep's job that failed says why here, in its own directory (the sweep goes on to its next job).
+JOB_ERROR_FILE = "error.txt"
 # What a run leaves before it has a result: Hydra's record of its config, its log, the lock, and the
 # TensorBoard log the logger opens before the model refuses a setting.
 RUN_SCAFFOLD = {".hydra", "train.log", "tensorboard", LOCK_NAME}

@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from sfmnet.io import write_csv_atomic
 from sfmnet.training.headline_metrics import headline_keys
+from sfmnet.training.run_directory import JOB_ERROR_FILE
 
 SEED = "seed"
 
@@ -67,7 +68,8 @@ def seed_summary(rows: list[dict[str, Any]], override_keys: list[str]) -> tuple[
     for values, jobs in groups.items():
         line: dict[str, Any] = {**dict(zip(varying, values)), "n": len(jobs)}
         for figure in figures:
-            found = [float(job[figure]) for job in jobs if figure in job]
+            # None: a figure the job could not define (metrics.json's null).
+            found = [float(job[figure]) for job in jobs if job.get(figure) is not None]
             line[f"{figure} mean"] = statistics.fmean(found) if found else None
             line[f"{figure} std"] = statistics.stdev(found) if len(found) > 1 else None
         summary.append(line)
@@ -103,12 +105,19 @@ class SweepSummary(Callback):
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir).resolve()
         rows, override_keys = sweep_rows(sweep_dir)
+        failed = sorted((path.parent.name for path in sweep_dir.glob(f"*/{JOB_ERROR_FILE}")), key=lambda job: (len(job), job))
+        if failed:
+            print(
+                f"\n{len(failed)} of {len(rows) + len(failed)} jobs failed (job {', '.join(failed)}): each job's "
+                f"{JOB_ERROR_FILE} says why" + ("; the table below is of the others" if rows else "")
+            )
         if not rows:
             return
         write_sweep_csv(sweep_dir / "sweep.csv", rows, override_keys)
         varying, summary = seed_summary(rows, override_keys)
         write_summary_csv(sweep_dir / "sweep_summary.csv", summary)
-        print(f"\nsweep of {len(rows)} jobs: each setting's mean ± standard deviation over its seeds")
+        jobs = f"{len(rows)} job{'s' if len(rows) != 1 else ''}"
+        print(f"\nsweep of {jobs}: each setting's mean ± standard deviation over its seeds")
         for line in summary_table(varying, summary):
             print(line)
         print(f"every job: {sweep_dir / 'sweep.csv'}\nthis table: {sweep_dir / 'sweep_summary.csv'}")
