@@ -370,6 +370,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     # train, calibration from a file (conf/data/csv.yaml)
     "empty file": (lambda t: calibrate_file(t, ""), r"is empty: give a CSV with a header row"),
     "header only": (lambda t: calibrate_file(t, "s0,s1,fx,fy,fz\n"), r"has a header but no data rows"),
+    # A hostile tester's: every channel was called constant.
+    "one data row": (lambda t: calibrate_file(t, "s0,s1,s2,fx,fy,fz\n1,2,3,,,\n"), r"has one data row: a calibration needs"),
     "non-numeric cell": (lambda t: calibrate(t, edit=set_cell(5, 2, "n/a")), r"channel column 's1' of .* is not numeric"),
     "NaN value": (lambda t: calibrate(t, edit=set_cell(7, 3, "nan")), r"1 empty, NaN or infinite reading values \(first: line 7 column s2\)"),
     "infinite value": (lambda t: calibrate(t, edit=set_cell(9, 1, "-inf")), r"1 empty, NaN or infinite reading values \(first: line 9 column s0\)"),

@@ -40,6 +40,12 @@ def excel_separator_line(rows: list[list[str]], path: Path) -> None:
     path.write_text("sep=;\n" + "".join(";".join(cell.replace(".", ",") for cell in row) + "\n" for row in rows))
 
 
+def trailing_separator(rows: list[list[str]], path: Path) -> None:
+    """A spreadsheet's export with a separator at the end of every line (a hostile tester's: "column  of ... is empty
+    on every row", a blank name)."""
+    path.write_text("".join(",".join(row) + ",\n" for row in rows))
+
+
 def unicode_text(rows: list[list[str]], path: Path) -> None:
     """Excel's "Unicode Text": UTF-16 with its byte-order mark, tab-separated."""
     path.write_text("".join("\t".join(row) + "\n" for row in rows), encoding="utf-16")
@@ -67,6 +73,7 @@ VARIANTS: dict[str, tuple[Callable[[list[list[str]], Path], None], str]] = {
     "BOM": (with_bom, "variant.csv"),
     "semicolons and decimal commas": (semicolons_and_decimal_commas, "variant.csv"),
     "Excel's sep= line": (excel_separator_line, "variant.csv"),
+    "a separator ending every line": (trailing_separator, "variant.csv"),
     "UTF-16 with tabs": (unicode_text, "variant.csv"),
     "quoted cells": (quoted, "variant.csv"),
     "empty rows": (with_empty_rows, "variant.csv"),

@@ -132,6 +132,11 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         readings = table.numeric(channels, "channel")
         check_finite(readings, channels, table, "reading")
         check_far_cells(readings, channels, table, "reading")
+        if len(readings) < 2:
+            # Else every channel reads as constant.
+            raise SfmnetError(
+                f"{self.path} has one data row: a calibration needs the readings of many orientations (dozens)"
+            )
         # The range, not the standard deviation: that of a column of 1.234 is ~1e-13 in floating point, not 0.
         constant = [name for name, spread in zip(channels, np.ptp(readings, axis=0)) if spread == 0]
         if constant:

@@ -85,6 +85,10 @@ class DelimitedFile:
         if first is None:
             raise SfmnetError(f"{self.path} is empty: give a CSV with a header row and one row per sample")
         header = first[1]
+        if len(header) > 1 and header[-1] == "" and "" not in header[:-1]:
+            # A separator ending every line (a spreadsheet's export) makes no column: each row's empty last cell goes.
+            header = header[:-1]
+            records = ((line, cells[:-1] if len(cells) > len(header) and cells[-1] == "" else cells) for line, cells in records)
         duplicates = sorted({name for name in header if header.count(name) > 1})
         if duplicates:
             raise SfmnetError(f"{self.path} has duplicate column names: {', '.join(duplicates)}; rename them")
