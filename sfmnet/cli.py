@@ -116,34 +116,30 @@ FAILED_JOBS: list[str] = []
 
 def run_sweep_job(action: Callable[[], object], job_dir: Path) -> None:
     """Run one job of a sweep (``-m``): a failure is one line on stderr and the job's ``error.txt``, and the sweep goes
-    on to its next job (Hydra would stop it, leaving the finished jobs unsummarised); a Ctrl-C stops the sweep."""
+    on to its next job (Hydra would stop it, leaving the finished jobs unsummarised); a Ctrl-C stops the sweep
+    (:func:`exit_on_user_error`)."""
     from sfmnet.training.run_directory import JOB_ERROR_FILE
 
-    try:
-        action()
-    except KeyboardInterrupt:
-        if debug_enabled():
-            raise
-        print(f"interrupted in job {job_dir.name}: {interrupted_outside_fit(job_dir)}", file=sys.stderr)
-        sys.exit(FitInterrupted.exit_status)
-    except Exception as error:
-        cause = user_error(error)
-        if debug_enabled():
-            raise
-        if isinstance(cause, FitInterrupted):
-            print(f"interrupted in job {job_dir.name}: {cause}", file=sys.stderr)
-            sys.exit(cause.exit_status)
-        if cause is not None:
-            message, detail = str(cause), ""
-        else:
-            message = (
-                f"{type(error).__name__}: {error} (a fault in sfmnet, not in your input; the traceback is in "
-                f"{job_dir / JOB_ERROR_FILE})"
-            ).replace("\n", " ")
-            detail = "".join(traceback.format_exception(error))
-        (job_dir / JOB_ERROR_FILE).write_text(f"{message}\n{detail}")
-        print(f"error in job {job_dir.name}: {message}", file=sys.stderr)
-        FAILED_JOBS.append(job_dir.name)
+    def job() -> None:
+        try:
+            action()
+        except Exception as error:
+            cause = user_error(error)
+            if debug_enabled() or isinstance(cause, FitInterrupted):
+                raise
+            if cause is not None:
+                message, detail = str(cause), ""
+            else:
+                message = (
+                    f"{type(error).__name__}: {error} (a fault in sfmnet, not in your input; the traceback is in "
+                    f"{job_dir / JOB_ERROR_FILE})"
+                ).replace("\n", " ")
+                detail = "".join(traceback.format_exception(error))
+            (job_dir / JOB_ERROR_FILE).write_text(f"{message}\n{detail}")
+            print(f"error in job {job_dir.name}: {message}", file=sys.stderr)
+            FAILED_JOBS.append(job_dir.name)
+
+    exit_on_user_error(job, run_dir=job_dir)
 
 
 def check_train_arguments(args: list[str]) -> None:
