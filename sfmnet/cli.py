@@ -178,8 +178,13 @@ def train_command() -> None:
                 if not is_worker():
                     release_run_dir(run_dir)
         else:
-            # A sweep's job keeps its directory beside the others, with its error.
-            run_sweep_job(lambda: train(cfg, run_dir), run_dir)
+            try:
+                # A sweep's job keeps its directory beside the others, with its error.
+                run_sweep_job(lambda: train(cfg, run_dir), run_dir)
+            except SystemExit:
+                # Interrupted: the sweep ends here, without Hydra's end of sweep, which would release its claim.
+                release_run_dir(Path(HydraConfig.get().sweep.dir))
+                raise
 
     task()
     if FAILED_JOBS:

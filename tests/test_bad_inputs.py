@@ -379,6 +379,9 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "ISO clock times": (
         lambda t: calibrate(t, edit=clock_times), r"time column 'time' of .* is not numeric: .*\(dates or clock times: give times as numbers of seconds"
     ),
+    "stream: ISO clock times": (
+        lambda t: stream(t, edit=clock_times), r"session.csv line 2 has a non-numeric cell .*\(dates or clock times: give times as numbers of seconds"
+    ),
     # A hostile tester's: calibrated in an arbitrary frame labelled fx, fy, fz (175 % off, trusted, no warning).
     "load columns named, empty on every row": (
         lambda t: calibrate(t, known_loads=0),

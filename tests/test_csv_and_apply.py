@@ -264,3 +264,18 @@ def test_a_corrupt_cell_far_outside_its_column_is_named(tmp_path: Path):
     write_session(session, edit=overflow)
     with pytest.raises(SfmnetError, match=r"1 reading values over 1e\+04 times .* \(first: line 42 column s2 \(4.29e\+09\)\)"):
         train(csv_config(session, *QUIET), tmp_path / "run")
+
+
+def test_a_pose_held_for_most_of_the_recording_is_not_a_corrupt_cell(tmp_path: Path):
+    """The far-cell check is a gap, not a distance from the median: 95 % of rows at rest on one quantised value leave
+    the others far from the median but near one another (a hostile tester's, refused as corrupt by a first version)."""
+    from sfmnet.readers.table_file import check_far_cells, read_table
+
+    column = np.r_[np.full(950, 0.5), np.linspace(20.0, 22.0, 50)]
+    path = tmp_path / "rest.csv"
+    path.write_text("s0\n" + "".join(f"{v:.2f}\n" for v in column))
+    check_far_cells(column[:, None], ["s0"], read_table(path), "reading")
+    column[3] = 4294967295.0
+    path.write_text("s0\n" + "".join(f"{v:.2f}\n" for v in column))
+    with pytest.raises(SfmnetError, match=r"first: line 5 column s0 \(4.29e\+09\)"):
+        check_far_cells(column[:, None], ["s0"], read_table(path), "reading")

@@ -105,3 +105,12 @@ def test_a_refused_run_gives_its_directory_back(tmp_path: Path):
     (made_by_user / "train.log").write_text("")
     discard_refused_run(made_by_user)
     assert made_by_user.is_dir() and not any(made_by_user.iterdir())
+
+
+def test_a_run_directory_starting_with_a_tilde_is_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """Hydra does not expand '~': the run made a folder named '~' in the current one (a hostile tester's), which a
+    later `rm -rf ~` would take for the home folder."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SfmnetError, match=r"hydra.run.dir ~/runs/a starts with '~', which Hydra does not expand"):
+        claim_run_dir(Path("~/runs/a"), "hydra.run.dir")
+    assert not (tmp_path / "~").exists()

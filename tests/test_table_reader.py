@@ -40,6 +40,11 @@ def excel_separator_line(rows: list[list[str]], path: Path) -> None:
     path.write_text("sep=;\n" + "".join(";".join(cell.replace(".", ",") for cell in row) + "\n" for row in rows))
 
 
+def excel_separator_line_padded_tabs(rows: list[list[str]], path: Path) -> None:
+    """The ``sep=`` line naming a tab, padded with separators as a spreadsheet saving the file again writes it."""
+    path.write_text("sep=\t\t\t\n" + "".join("\t".join(row) + "\n" for row in rows))
+
+
 def trailing_separator(rows: list[list[str]], path: Path) -> None:
     """A spreadsheet's export with a separator at the end of every line (a hostile tester's: "column  of ... is empty
     on every row", a blank name)."""
@@ -73,6 +78,7 @@ VARIANTS: dict[str, tuple[Callable[[list[list[str]], Path], None], str]] = {
     "BOM": (with_bom, "variant.csv"),
     "semicolons and decimal commas": (semicolons_and_decimal_commas, "variant.csv"),
     "Excel's sep= line": (excel_separator_line, "variant.csv"),
+    "Excel's sep= line, a tab, padded": (excel_separator_line_padded_tabs, "variant.csv"),
     "a separator ending every line": (trailing_separator, "variant.csv"),
     "UTF-16 with tabs": (unicode_text, "variant.csv"),
     "quoted cells": (quoted, "variant.csv"),

@@ -38,6 +38,7 @@ def dependent_channels_message(names: list[str], source: str) -> str:
     """The one line refusing readings whose channels ``names`` are linearly dependent."""
     return (
         f"channels {', '.join(names)}{source} are linear functions of one another (a column copied, scaled or computed "
-        "from others; or simulated readings without noise): the noise model needs each channel's own noise; leave all "
-        "but one of them out with data.channel_columns=[...] (or add noise to a simulation)"
+        "from others; or simulated readings without noise): the noise model needs each channel's own noise; leave "
+        "out one of them with data.channel_columns=[...], and more until none is a function of the others (or add "
+        "noise to a simulation)"
     )

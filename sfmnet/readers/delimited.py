@@ -26,8 +26,9 @@ SEPARATORS = ("\t", ";", ",")
 # A cell refused as a number that would be one with a decimal point for its comma, e.g. '1,23' quoted in a CSV.
 DECIMAL_COMMA = re.compile(r"[-+]?\d*,\d+")
 
-# Excel's first line naming the separator, e.g. ``sep=;``.
-EXCEL_SEPARATOR_LINE = re.compile(r"sep=(.)")
+# Excel's first line naming the separator, e.g. ``sep=;``; quoted, or padded with separators by a spreadsheet that
+# saved the file again (``sep=;;;;``).
+EXCEL_SEPARATOR_LINE = re.compile(r'"?sep=(.)"?(.*)')
 
 # A line number and the cells of that row (whitespace stripped); a quoted cell may run over several lines.
 Record = tuple[int, list[str]]
@@ -62,6 +63,8 @@ class DelimitedFile:
         with self.path.open(encoding=self.encoding, newline="") as stream:
             reader = csv.reader(stream, delimiter=self.separator, skipinitialspace=True, strict=True)
             line = 1
+            # Excel's separator line, the first that is not blank, is no row.
+            skip = self.separator_line
             while True:
                 try:
                     row = next(reader)
@@ -74,7 +77,9 @@ class DelimitedFile:
                 except UnicodeDecodeError:
                     raise undecodable(self.path, self.encoding) from None
                 cells = [cell.strip() for cell in row]
-                if any(cells) and not (self.separator_line and line == 1):
+                if any(cells) and skip:
+                    skip = False
+                elif any(cells):
                     yield line, cells
                 line = reader.line_num + 1
 
@@ -130,8 +135,8 @@ def open_delimited(path: Path) -> DelimitedFile:
             lines = list(itertools.islice((line for line in stream if line.strip()), 2))
     except UnicodeDecodeError:
         raise undecodable(path, encoding) from None
-    named = EXCEL_SEPARATOR_LINE.fullmatch(lines[0].strip()) if lines else None
-    if named:
+    named = EXCEL_SEPARATOR_LINE.fullmatch(lines[0].rstrip("\r\n")) if lines else None
+    if named and set(named.group(2)) <= {named.group(1)}:
         return DelimitedFile(path, encoding, named.group(1), separator_line=True)
     return DelimitedFile(path, encoding, sniff_separator(lines))
 

@@ -26,7 +26,7 @@ from sfmnet.errors import SfmnetError
 from sfmnet.io import temporary_beside
 from sfmnet.readers.delimited import DelimitedFile, decimal_comma_hint, open_delimited
 from sfmnet.readers.input_file import check_input_file
-from sfmnet.readers.table_file import WHITESPACE_SUFFIXES, missing_column
+from sfmnet.readers.table_file import WHITESPACE_SUFFIXES, clock_time_hint, missing_column
 
 
 class BlockDataset(Dataset):
@@ -283,7 +283,7 @@ def row_values(source: DelimitedFile, header: list[str], index: list[int], line:
     values = [source.number(cells[column]) for column in index]
     if None in values:
         column = index[values.index(None)]
-        hint = decimal_comma_hint([cells[column]])
+        hint = decimal_comma_hint([cells[column]]) or clock_time_hint([cells[column]])
         if not hint and len(index) == len(header):
             hint = "; a column of text (notes, labels) is left unread when data.channel_columns lists the channels"
         raise SfmnetError(

@@ -25,8 +25,9 @@ def missing_column(name: str, role: str, path: Path, names: list[str]) -> Sfmnet
     return SfmnetError(f"{role} column '{name}' is not in {path}{hint}; its columns are: {', '.join(names)}")
 
 
-# A cell this many times its column's spread from the column's median is corrupt: no recording's readings span that
-# range with 90 % of them inside one ten-thousandth of it.
+# A cell this many times the range of the rest of its column away from them is corrupt: no sensor reads one pose that
+# far from all its others (the hostile tester's 1e4 in a column of range 5, 2e3 times, is left to the fit, which
+# names the row as an outlier).
 FAR_CELL_SPREADS = 1e4
 
 
@@ -235,16 +236,28 @@ def clock_time_hint(cells: Iterable[str]) -> str:
 
 
 def check_far_cells(values: np.ndarray, names: list[str], table: Table, role: str) -> None:
-    """Refuse cells :data:`FAR_CELL_SPREADS` times their column's spread from its median (``values``: ``table``'s
-    columns ``names``), the spread the 5th to 95th percentile of the column (a few corrupt cells cannot widen it): a
-    corrupted cell that far out takes the closed form's subspace over, and the fit then blames the orientations (a
-    hostile tester's 0xFFFFFFFF in counts: "the loads are collinear or coplanar")."""
-    low, median, high = np.percentile(values, [5, 50, 95], axis=0)
-    spread = np.maximum(high - low, np.finfo(float).tiny)
+    """Refuse the few cells (at most 1 % of a column's, at each end) that stand :data:`FAR_CELL_SPREADS` times the
+    spread of the rest of their column away from it (``values``: ``table``'s columns ``names``): a corrupted cell that
+    far out takes the closed form's subspace over, and the fit then blames the orientations (a hostile tester's
+    0xFFFFFFFF in counts: "the loads are collinear or coplanar"). A gap, not a distance from the median: a pose held
+    for most of the recording leaves the other poses' readings far from the median but near one another."""
+    rows = len(values)
+    tail = max(1, rows // 100)
+    if rows <= 2 * tail + 1:
+        return
+    ordered = np.sort(values, axis=0)
+    bad = np.zeros(values.shape, dtype=bool)
+    for k in range(1, tail + 1):
+        # The top k cells against the rest: the gap below them over the rest's range; the same at the bottom.
+        rest = ordered[rows - k - 1] - ordered[0]
+        high = ordered[rows - k] - ordered[rows - k - 1] > FAR_CELL_SPREADS * rest
+        bad |= high & (values >= ordered[rows - k])
+        rest = ordered[rows - 1] - ordered[k]
+        low = ordered[k] - ordered[k - 1] > FAR_CELL_SPREADS * rest
+        bad |= low & (values <= ordered[k - 1])
     refuse_cells(
-        np.abs(values - median) > FAR_CELL_SPREADS * spread, values, names, table,
-        f"{role} values over {FAR_CELL_SPREADS:.0e} times their column's spread (5th to 95th percentile) from its median",
-        "corrupt cells (an overflow, a dropped packet, a unit slip): repair or remove those rows", True,
+        bad, values, names, table, f"{role} values over {FAR_CELL_SPREADS:.0e} times the spread of the rest of their column "
+        "away from it", "corrupt cells (an overflow, a dropped packet, a unit slip): repair or remove those rows", True,
     )
 
 

@@ -37,6 +37,12 @@ def claim_run_dir(path: Path, option: str) -> None:
         option: the setting that named it, for the message (``hydra.run.dir``, ``run_dir``).
     """
     path = Path(path)
+    if path.parts and path.parts[0].startswith("~"):
+        # Hydra takes it literally: a folder named "~" here, which a later `rm -rf ~` would take for the home folder.
+        raise SfmnetError(
+            f"{option} {path} starts with '~', which Hydra does not expand (it would make a folder named '~' here): "
+            f"give the full path, e.g. {option}={Path(path).expanduser()}"
+        )
     check_writable_dir(path, option)
     created = not path.exists()
     try:
