@@ -246,15 +246,17 @@ def check_far_cells(values: np.ndarray, names: list[str], table: Table, role: st
     if rows <= 2 * tail + 1:
         return
     ordered = np.sort(values, axis=0)
-    bad = np.zeros(values.shape, dtype=bool)
-    for k in range(1, tail + 1):
-        # The top k cells against the rest: the gap below them over the rest's range; the same at the bottom.
-        rest = ordered[rows - k - 1] - ordered[0]
-        high = ordered[rows - k] - ordered[rows - k - 1] > FAR_CELL_SPREADS * rest
-        bad |= high & (values >= ordered[rows - k])
-        rest = ordered[rows - 1] - ordered[k]
-        low = ordered[k] - ordered[k - 1] > FAR_CELL_SPREADS * rest
-        bad |= low & (values <= ordered[k - 1])
+    k = np.arange(1, tail + 1)[:, None]
+    columns = np.arange(values.shape[1])
+    # Row k - 1 of each: the top (bottom) k cells against the rest, the gap between over the rest's range.
+    high = ordered[rows - k] - ordered[rows - k - 1] > FAR_CELL_SPREADS * (ordered[rows - k - 1] - ordered[0])
+    low = ordered[k] - ordered[k - 1] > FAR_CELL_SPREADS * (ordered[rows - 1] - ordered[k])
+    # The most cells such a gap sets apart, at each end of each column (0: none).
+    top = np.where(high.any(axis=0), tail - np.argmax(high[::-1], axis=0), 0)
+    bottom = np.where(low.any(axis=0), tail - np.argmax(low[::-1], axis=0), 0)
+    above = np.where(top > 0, ordered[rows - np.maximum(top, 1), columns], np.inf)
+    below = np.where(bottom > 0, ordered[np.maximum(bottom, 1) - 1, columns], -np.inf)
+    bad = (values >= above) | (values <= below)
     refuse_cells(
         bad, values, names, table, f"{role} values over {FAR_CELL_SPREADS:.0e} times the spread of the rest of their column "
         "away from it", "corrupt cells (an overflow, a dropped packet, a unit slip): repair or remove those rows", True,
