@@ -375,6 +375,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "non-numeric cell": (lambda t: calibrate(t, edit=set_cell(5, 2, "n/a")), r"channel column 's1' of .* is not numeric"),
     "NaN value": (lambda t: calibrate(t, edit=set_cell(7, 3, "nan")), r"1 empty, NaN or infinite reading values \(first: line 7 column s2\)"),
     "infinite value": (lambda t: calibrate(t, edit=set_cell(9, 1, "-inf")), r"1 empty, NaN or infinite reading values \(first: line 9 column s0\)"),
+    # A hostile tester's (through the Python API): "gives only some of fx, fy, fz".
+    "infinite known load": (lambda t: calibrate(t, edit=set_cell(99, 8, "inf")), r"1 infinite load values \(first: line 99 column fy \(inf\)\)"),
     # A hostile tester's: the refusal named no remedy.
     "ISO clock times": (
         lambda t: calibrate(t, edit=clock_times), r"time column 'time' of .* is not numeric: .*\(dates or clock times: give times as numbers of seconds"

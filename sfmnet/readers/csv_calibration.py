@@ -15,7 +15,7 @@ from sfmnet.preprocessing.row_repeats import row_repeats
 from sfmnet.preprocessing.static_intervals import StaticIntervals
 from sfmnet.preprocessing.stuck_channels import stuck_readings
 from sfmnet.readers.static_rows import fitted_rows, static_settings
-from sfmnet.readers.table_file import Table, check_far_cells, check_finite, read_table
+from sfmnet.readers.table_file import Table, check_far_cells, check_finite, read_table, refuse_cells
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.channel_dependence import dependent_channels, dependent_channels_message
 from sfmnet.linalg.frame import MirrorHint
@@ -145,7 +145,10 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 "leave it out with data.channel_columns=[...]"
             )
         loads = table.numeric(self.load_columns, "load") if self.load_columns else np.full((len(readings), len(self.axes)), np.nan)
-        loads[~np.isfinite(loads)] = np.nan
+        # An empty cell is an unknown load; an infinite one is a corrupt cell, not a missing one.
+        refuse_cells(
+            np.isinf(loads), loads, self.load_columns, table, "infinite load values", "give the load or leave its cells empty", True
+        )
         partial = np.isnan(loads).any(axis=1) & ~np.isnan(loads).all(axis=1)
         if partial.any():
             raise SfmnetError(
