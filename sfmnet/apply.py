@@ -36,8 +36,11 @@ def output_names(axes: list[str], existing: list[str]) -> list[str]:
     return [f"{axis}_calibrated" if axis in existing else axis for axis in axes]
 
 
-def apply_calibration(calibration_path: Path, input_path: Path, output_path: Path, overwrite: bool) -> int:
-    """Write ``output_path``: every input row and column, then the calibrated loads. Returns the row count."""
+def apply_calibration(
+    calibration_path: Path, input_path: Path, output_path: Path, overwrite: bool
+) -> tuple[int, Calibration]:
+    """Write ``output_path``: every input row and column, then the calibrated loads. Returns the row count and the
+    calibration applied."""
     refuse_overwrite(output_path, overwrite, "output=", "loads.csv", "add overwrite=true")
     if output_path.resolve() == input_path.resolve():
         raise SfmnetError("output= is the input file: write the loads to a new file")
@@ -64,20 +67,19 @@ def apply_calibration(calibration_path: Path, input_path: Path, output_path: Pat
         [*header, *output_names(calibration.axes, header)],
         ([*cells, *(f"{value:.9g}" for value in load)] for (_, cells), load in zip(rows, loads)),
     )
-    return len(loads)
+    return len(loads), calibration
 
 
 def apply_command(args: list[str]) -> None:
     options = parse_options(args)
     output = Path(options["output"])
-    count = apply_calibration(
+    count, calibration = apply_calibration(
         Path(options["calibration"]),
         Path(options["input"]),
         output,
         overwrite=options.get("overwrite", "false").lower() in ("1", "true", "yes"),
     )
     print(f"wrote {count} rows of loads to {output}")
-    calibration = Calibration.load(Path(options["calibration"]))
     if not calibration.error_bars_trustworthy:
         # Its loads are still what the fit gives; the user should not take them as the sensor's without knowing.
         first = calibration.warnings[0] if calibration.warnings else "the fit failed"

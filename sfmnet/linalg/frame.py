@@ -49,11 +49,10 @@ def channel_frame_rotation(matrix: torch.Tensor) -> torch.Tensor:
 
     With no known load the data fix ``C`` only up to an orthogonal transform, a mirror included. Of those, this one
     puts each load axis nearest its own channel (an accelerometer's or magnetometer's axes are its channels, up to
-    small misalignments), with positive gains, and so is right-handed wherever the channels are. ``M <- M R``,
-    ``S <- R^T S`` as for :func:`frame_rotation`.
+    small misalignments), with positive gains, and so is right-handed wherever the channels are: the Procrustes
+    rotation of ``C`` onto the identity. ``M <- M R``, ``S <- R^T S`` as for :func:`frame_rotation`.
     """
-    u, _, vt = torch.linalg.svd(matrix)
-    return u @ vt
+    return orthogonal_procrustes(matrix.T, torch.eye(len(matrix), dtype=matrix.dtype))
 
 
 def median_per_load(estimated_loads: torch.Tensor, known_loads: torch.Tensor) -> torch.Tensor:
