@@ -262,7 +262,7 @@ def test_a_corrupt_cell_far_outside_its_column_is_named(tmp_path: Path):
 
     session = tmp_path / "session.csv"
     write_session(session, edit=overflow)
-    with pytest.raises(SfmnetError, match=r"1 reading values over 1e\+04 times .* \(first: line 42 column s2 \(4.29e\+09\)\)"):
+    with pytest.raises(SfmnetError, match=r"1 reading value over 1e\+04 times .* \(first: line 42 column s2 \(4.29e\+09\)\)"):
         train(csv_config(session, *QUIET), tmp_path / "run")
 
 

@@ -185,6 +185,21 @@ def test_a_refused_row_far_in_a_streamed_csv_is_named_by_its_file_line(tmp_path:
         train(cfg, tmp_path / "run")
 
 
+def test_a_corrupt_cell_far_outside_its_column_is_named_in_a_stream(tmp_path: Path):
+    """A 0xFFFFFFFF in one cell of a streamed session took the closed form over and the run blamed the orientations
+    ("the loads barely span 3 dimensions ... collinear or coplanar"); it is now named by its line, as in memory."""
+    from sfmnet.errors import SfmnetError
+
+    def overflow(rows: list[list[str]]) -> None:
+        rows[41][2] = "4294967295"
+
+    session = tmp_path / "session.csv"
+    write_session(session, known_loads=3, edit=overflow)
+    cfg = compose_config(["experiment=calibrate_stream", f"data.path={session}", *SESSION])
+    with pytest.raises(SfmnetError, match=r"^1 reading value over 1e\+04 times .*\(first: line 42 of .*session.csv column s1 \(4.29e\+09\)\)"):
+        train(cfg, tmp_path / "run")
+
+
 def test_a_text_column_beside_the_listed_channels_is_not_read(session: Path, tmp_path: Path):
     """A CSV with an operator's note column: streamed with the channels listed, the same calibration as without it."""
     noted = tmp_path / "noted.csv"

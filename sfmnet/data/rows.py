@@ -14,6 +14,8 @@ import torch
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.linalg.moments import Moments
+from sfmnet.preprocessing.chunked_rows import CHUNK_ROWS
+from sfmnet.preprocessing.far_cells import FAR_CELLS_REMEDY, far_cell_limits_chunked, far_cells_what
 
 SHIFT_ROWS = 10_000
 BLOCK_BYTES = 32 * 2**20
@@ -123,10 +125,50 @@ class RowData:
                 f"{IMPLAUSIBLE:.0e} (a corrupt cell or a unit slip): repair or drop that row"
             )
 
+    def refuse_far_cells(self) -> None:
+        """Refuse the channels' far cells (:mod:`sfmnet.preprocessing.far_cells`), naming the first three: a pass of the
+        file, and a second where there are any. Every cell finite (:meth:`refuse_bad_rows` first)."""
+        channels = MappedColumns(self.layout, self.channel_index)
+        above, below = far_cell_limits_chunked(channels)
+        if np.isinf(above).all() and np.isinf(below).all():
+            return
+        count, first = 0, []
+        for start in range(0, self.rows, CHUNK_ROWS):
+            values = channels[start : start + CHUNK_ROWS]
+            rows, columns = np.nonzero((values >= above) | (values <= below))
+            count += len(rows)
+            first += [
+                f"{self.row_place(start + int(r))} column {self.channels[c]} ({values[r, c]:.3g})"
+                for r, c in zip(rows[: 3 - len(first)], columns[: 3 - len(first)])
+            ]
+        raise SfmnetError(
+            f"{count} {far_cells_what('reading', count)} (first: {', '.join(first)}): {FAR_CELLS_REMEDY}"
+        )
+
     def require_plausible(self, moments: Moments) -> None:
         """:meth:`refuse_bad_rows` where such a cell shows in the sums ``moments`` it poisons (the scan on suspicion only)."""
         if not bool(torch.isfinite(moments.cross).all()) or float(moments.cross.diagonal().max()) > IMPLAUSIBLE**2:
             self.refuse_bad_rows()
+
+
+class MappedColumns:
+    """Some columns of a ``.npy`` row file, sliced by rows through a memory map of just those rows (float64, times ``scale``).
+
+    ``vector``: one column read as ``f`` values (a time column), else ``f x c``: what the static-interval detector takes.
+    """
+
+    def __init__(self, layout: NpyLayout, index: list[int], scale: float = 1.0, vector: bool = False) -> None:
+        self.layout = layout
+        self.index = index
+        self.scale = scale
+        self.vector = vector
+        self.shape = (layout.shape[0],) if vector else (layout.shape[0], len(index))
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        start, stop, _ = rows.indices(self.layout.shape[0])
+        values = np.asarray(mapped_rows(self.layout, start, stop - start)[:, self.index], dtype=np.float64)
+        values = values[:, 0] if self.vector else values
+        return values * self.scale if self.scale != 1.0 else values
 
 
 class IntervalSums(NamedTuple):

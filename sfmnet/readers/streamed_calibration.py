@@ -9,7 +9,7 @@ import torch
 from sfmnet.readers.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields, monotonic_channel_warnings
 from sfmnet.data.recording import CalibrationData
 from sfmnet.readers.row_file import RowFileDataModule, column_index
-from sfmnet.data.rows import SHIFT_ROWS, NpyLayout, StreamedRecording, mapped_rows
+from sfmnet.data.rows import SHIFT_ROWS, MappedColumns, StreamedRecording, mapped_rows
 from sfmnet.readers.static_rows import fitted_rows, static_settings
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
@@ -102,6 +102,8 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             load_columns=self.load_columns, load_index=load_index, magnitude=magnitude, axes=self.axes,
             known_load_tolerance=self.known_load_tolerance,
         )
+        recording.refuse_bad_rows()
+        recording.refuse_far_cells()
         detection = self.find_static_rows(recording, names) if self.static is not None else None
         if self.mirror_hint is not None:
             self.read_mirror_hint(recording)
@@ -129,7 +131,6 @@ class StreamedCalibrationDataModule(RowFileDataModule):
     def find_static_rows(self, recording: StreamedRecording, names: list[str]) -> StaticIntervals:
         """Detect the static intervals chunk by chunk and set ``recording.keep`` and ``recording.intervals`` (unless the rows
         are independent poses)."""
-        recording.refuse_bad_rows()
         layout = recording.layout
         time = None
         if self.time_column:
@@ -154,23 +155,3 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             )
         recording.mirror_hint = MirrorHint(sample=0, axis=axis, sign=sign, axis_name=self.load_columns[axis])
         recording.hint_reading = torch.from_numpy(values[recording.channel_index])
-
-
-class MappedColumns:
-    """Some columns of a ``.npy`` row file, sliced by rows through a memory map of just those rows (float64, times ``scale``).
-
-    ``vector``: one column read as ``f`` values (a time column), else ``f x c``: what the static-interval detector takes.
-    """
-
-    def __init__(self, layout: NpyLayout, index: list[int], scale: float = 1.0, vector: bool = False) -> None:
-        self.layout = layout
-        self.index = index
-        self.scale = scale
-        self.vector = vector
-        self.shape = (layout.shape[0],) if vector else (layout.shape[0], len(index))
-
-    def __getitem__(self, rows: slice) -> np.ndarray:
-        start, stop, _ = rows.indices(self.layout.shape[0])
-        values = np.asarray(mapped_rows(self.layout, start, stop - start)[:, self.index], dtype=np.float64)
-        values = values[:, 0] if self.vector else values
-        return values * self.scale if self.scale != 1.0 else values

@@ -13,6 +13,7 @@ import numpy as np
 
 from sfmnet.data.rows import IMPLAUSIBLE
 from sfmnet.errors import SfmnetError
+from sfmnet.preprocessing.far_cells import FAR_CELLS_REMEDY, far_cells, far_cells_what
 from sfmnet.readers.delimited import decimal_comma_hint, open_delimited
 from sfmnet.readers.input_file import check_input_file
 
@@ -23,12 +24,6 @@ def missing_column(name: str, role: str, path: Path, names: list[str]) -> Sfmnet
     close = same_but_case or difflib.get_close_matches(name, names, n=1)
     hint = f" (did you mean '{close[0]}'?)" if close else ""
     return SfmnetError(f"{role} column '{name}' is not in {path}{hint}; its columns are: {', '.join(names)}")
-
-
-# A cell this many times the range of the rest of its column away from them is corrupt: no sensor reads one pose that
-# far from all its others (the hostile tester's 1e4 in a column of range 5, 2e3 times, is left to the fit, which
-# names the row as an outlier).
-FAR_CELL_SPREADS = 1e4
 
 
 @dataclass(frozen=True)
@@ -236,31 +231,10 @@ def clock_time_hint(cells: Iterable[str]) -> str:
 
 
 def check_far_cells(values: np.ndarray, names: list[str], table: Table, role: str) -> None:
-    """Refuse the few cells (at most 1 % of a column's, at each end) that stand :data:`FAR_CELL_SPREADS` times the
-    spread of the rest of their column away from it (``values``: ``table``'s columns ``names``): a corrupted cell that
-    far out takes the closed form's subspace over, and the fit then blames the orientations (a hostile tester's
-    0xFFFFFFFF in counts: "the loads are collinear or coplanar"). A gap, not a distance from the median: a pose held
-    for most of the recording leaves the other poses' readings far from the median but near one another."""
-    rows = len(values)
-    tail = max(1, rows // 100)
-    if rows <= 2 * tail + 1:
-        return
-    ordered = np.sort(values, axis=0)
-    k = np.arange(1, tail + 1)[:, None]
-    columns = np.arange(values.shape[1])
-    # Row k - 1 of each: the top (bottom) k cells against the rest, the gap between over the rest's range.
-    high = ordered[rows - k] - ordered[rows - k - 1] > FAR_CELL_SPREADS * (ordered[rows - k - 1] - ordered[0])
-    low = ordered[k] - ordered[k - 1] > FAR_CELL_SPREADS * (ordered[rows - 1] - ordered[k])
-    # The most cells such a gap sets apart, at each end of each column (0: none).
-    top = np.where(high.any(axis=0), tail - np.argmax(high[::-1], axis=0), 0)
-    bottom = np.where(low.any(axis=0), tail - np.argmax(low[::-1], axis=0), 0)
-    above = np.where(top > 0, ordered[rows - np.maximum(top, 1), columns], np.inf)
-    below = np.where(bottom > 0, ordered[np.maximum(bottom, 1) - 1, columns], -np.inf)
-    bad = (values >= above) | (values <= below)
-    refuse_cells(
-        bad, values, names, table, f"{role} values over {FAR_CELL_SPREADS:.0e} times the spread of the rest of their column "
-        "away from it", "corrupt cells (an overflow, a dropped packet, a unit slip): repair or remove those rows", True,
-    )
+    """Refuse the far cells of ``values`` (``table``'s columns ``names``; :func:`~sfmnet.preprocessing.far_cells.far_cells`:
+    the few at either end of a column that stand 1e4 times the rest's range away from it)."""
+    bad = far_cells(values)
+    refuse_cells(bad, values, names, table, far_cells_what(role, int(bad.sum())), FAR_CELLS_REMEDY, True)
 
 
 def refuse_cells(
