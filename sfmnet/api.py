@@ -8,6 +8,7 @@ calibration from the API and one from the command line on the same numbers are t
 from __future__ import annotations
 
 import contextlib
+import datetime
 import io
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -58,7 +59,8 @@ def calibrate(
             known rows fix the frame, with ``**{"data.mirror_hint": {"row": r, "axis": a, "sign": s}}``
             for ``n - 1``); None: no known loads, the frame is arbitrary (an orthogonal transform,
             possibly a reflection: every magnitude right) and ``axes`` names the ``n`` load axes.
-        time: ``(f,)`` the rows' time in seconds (turns on static-interval detection), or None.
+        time: ``(f,)`` the rows' time in seconds, or as ``numpy.datetime64`` / ``timedelta64`` (a pandas time
+            column's values), read from the first row's (turns on static-interval detection), or None.
         poses: ``(f,)`` the pose each row was held in (numbers, NaN for a row of a pose of its own), or None:
             ``data.group_column``. A pose's rows share one direction, and a pose held more than once (the first
             pose again at the end) is checked for drift between its holds.
@@ -121,7 +123,7 @@ def calibrate(
         ("poses", poses, POSE_COLUMN, "group_column", "one pose label (a number) per reading"),
     ):
         if values is not None:
-            array = as_float_array(values, name, wanted)
+            array = seconds_from_first(values) if name == "time" else as_float_array(values, name, wanted)
             if array.shape != (f,):
                 raise SfmnetError(f"{name} has shape {array.shape} but readings has {f} rows: give {wanted}")
             columns[column] = array
@@ -131,6 +133,21 @@ def calibrate(
     table = Table(path=Path(data["path"]), columns=columns, text={})
     cfg = calibration_config(data, config_overrides, verbose)
     return run_calibration(cfg, table, run_dir, verbose)
+
+
+def seconds_from_first(time: Any) -> np.ndarray:
+    """Times in seconds: numbers as given, dates and durations (``datetime64``, ``timedelta64``, ``datetime``) from the
+    first's (their integer counts would otherwise be read as seconds: nanoseconds from pandas)."""
+    if hasattr(time, "detach"):
+        return as_float_array(time, "time", "one time (s) per reading")
+    array = np.asarray(time)
+    if array.dtype == object and array.size and all(isinstance(value, (datetime.datetime, datetime.timedelta)) for value in array.flat):
+        array = array.astype("datetime64[ns]" if isinstance(array.flat[0], datetime.datetime) else "timedelta64[ns]")
+    if array.dtype.kind in "mM" and array.ndim == 1 and array.size:
+        if np.isnat(array).any():
+            raise SfmnetError("time has missing values (NaT): give every reading a time")
+        return (array - array[0]) / np.timedelta64(1, "s")
+    return as_float_array(array, "time", "one time (s) per reading")
 
 
 def as_number(value: Any, name: str) -> float:

@@ -38,10 +38,11 @@ from tests.test_csv_and_apply import set_cell
 Action = Callable[[], object]
 
 
-def clock_times(rows: list[list[str]]) -> None:
-    """The time column as a logger's ISO 8601 stamps."""
+def clock_times_with_a_gap(rows: list[list[str]]) -> None:
+    """The time column as a logger's ISO 8601 stamps (read as seconds), one of them lost."""
     for i, row in enumerate(rows[1:]):
         row[0] = f"2026-12-07T13:52:{i // 100:02d}.{i % 100:02d}0"
+    rows[40][0] = "n/a"
 
 
 def calibrate(tmp_path: Path, *overrides: str, edit=None, known_loads: int = 3) -> Action:
@@ -378,11 +379,16 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     # A hostile tester's (through the Python API): "gives only some of fx, fy, fz".
     "infinite known load": (lambda t: calibrate(t, edit=set_cell(99, 8, "inf")), r"1 infinite load values \(first: line 99 column fy \(inf\)\)"),
     # A hostile tester's: the refusal named no remedy.
-    "ISO clock times": (
-        lambda t: calibrate(t, edit=clock_times), r"time column 'time' of .* is not numeric: .*\(dates or clock times: give times as numbers of seconds"
+    "ISO clock times, one lost": (
+        lambda t: calibrate(t, edit=clock_times_with_a_gap), r"^line 41 of .*session.csv has time 'n/a' among dates or clock times: give every row a time"
     ),
-    "stream: ISO clock times": (
-        lambda t: stream(t, edit=clock_times), r"session.csv line 2 has a non-numeric cell .*\(dates or clock times: give times as numbers of seconds"
+    "stream: ISO clock times, one lost": (
+        lambda t: stream(t, edit=clock_times_with_a_gap), r"session.csv line 41 has a non-numeric cell \('n/a' in column time\): every cell must be a number"
+    ),
+    # Clock times listed among the channels (a time column not named as one).
+    "clock times as a channel": (
+        lambda t: calibrate(t, "data.time_column=null", "data.channel_columns=[time,s0,s1,s2,s3,s4,s5]", edit=clock_times_with_a_gap),
+        r"channel column 'time' of .* is not numeric: .*\(dates or clock times: a time column may hold them, named by data.time_column",
     ),
     # A hostile tester's: calibrated in an arbitrary frame labelled fx, fy, fz (175 % off, trusted, no warning).
     "load columns named, empty on every row": (

@@ -14,6 +14,7 @@ from sfmnet.preprocessing.revisited_poses import RevisitedPoses, hold_ids, holds
 from sfmnet.preprocessing.row_repeats import row_repeats
 from sfmnet.preprocessing.static_intervals import StaticIntervals
 from sfmnet.preprocessing.stuck_channels import stuck_readings
+from sfmnet.readers.clock_times import all_clock_times
 from sfmnet.readers.static_rows import fitted_rows, static_settings
 from sfmnet.readers.table_file import Table, check_far_cells, check_finite, read_table, refuse_cells
 from sfmnet.errors import SfmnetError
@@ -112,7 +113,11 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         refuse_columns_named_twice(roles)
         table = self.table if self.table is not None else read_table(self.path, self.columns)
         for role, names in roles.items():
-            table.require(names, role)
+            if role != "time":
+                table.require(names, role)
+        # Read (so checked) even where static intervals are off, though only they use it.
+        time = table.times(self.time_column, self.static.time_scale if self.static else 1.0) if self.time_column else None
+        time = time if self.static is not None else None
         excluded = {*self.load_columns, *(c for c in (self.time_column, self.configuration_column, self.group_column) if c)}
         # Numeric columns with a few bad cells stay in, so their cells are reported, not skipped.
         candidates = [name for name in [*table.columns, *table.text] if name in table.columns or name in table.corrupt]
@@ -163,12 +168,11 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         dependent = dependent_channels(centred.T @ centred, len(unknown), len(self.axes))
         if dependent:
             raise SfmnetError(dependent_channels_message([channels[k] for k in dependent], f" of {self.path}"))
-        groups, labels, time = None, None, None
+        groups, labels = None, None
         if self.group_column:
             labels = table.numeric([self.group_column], "group")[:, 0]
         detection, keep = None, np.ones(len(readings), dtype=bool)
         if self.static is not None:
-            time = table.numeric([self.time_column], "time")[:, 0] * self.static.time_scale if self.time_column else None
             detection = self.static.detect(readings, time, table.where)
             known = np.nonzero(~np.isnan(loads).any(axis=1))[0]
             keep = fitted_rows(
@@ -209,11 +213,26 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         return CalibrationData(
             recordings={"rotation": recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
             static_intervals=detection, test=test,
-            warnings=[*monotonic_channel_warnings(readings, channels, "the file's rows"), *unvisited],
+            warnings=[
+                *monotonic_channel_warnings(readings, channels, "the file's rows"), *self.unread_time_warnings(table),
+                *unvisited,
+            ],
             row_repeats=row_repeats(readings) if detection is None else detection.repeats,
             stuck_readings=[stuck for stuck in stuck_readings(readings, len(self.axes)) if keep[stuck.first : stuck.stop].any()],
             revisited_poses=revisits,
         )
+
+    def unread_time_warnings(self, table: Table) -> list[str]:
+        """Without a time column, a note for each column of dates or clock times left unread: named, it would find the
+        static intervals, and a continuous recording's rows in motion would be left out of the fit."""
+        if self.time_column:
+            return []
+        return [
+            f"column '{name}' holds dates or clock times and was not read: if the rows were recorded in one stream, "
+            f"name it (data.time_column={name}) so that only the static intervals are fitted"
+            for name, cells in table.cells.items()
+            if name not in table.corrupt and all_clock_times(cells)
+        ]
 
     def named_columns(self) -> dict[str, list[str]]:
         """Every column the config names, by role: each must be in the file (a misspelt time column would become a channel)."""

@@ -24,9 +24,10 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from sfmnet.data.rows import BLOCK_BYTES, IMPLAUSIBLE, SHIFT_ROWS, NpyLayout, RowBlock, RowData, mapped_rows, npy_layout
 from sfmnet.errors import SfmnetError
 from sfmnet.io import temporary_beside
+from sfmnet.readers.clock_times import ClockTimes, clock_time_hint
 from sfmnet.readers.delimited import DelimitedFile, decimal_comma_hint, open_delimited
 from sfmnet.readers.input_file import check_input_file
-from sfmnet.readers.table_file import WHITESPACE_SUFFIXES, clock_time_hint, missing_column
+from sfmnet.readers.table_file import WHITESPACE_SUFFIXES, missing_column
 
 
 class BlockDataset(Dataset):
@@ -142,6 +143,10 @@ class RowFileDataModule(L.LightningDataModule):
         """The CSV columns the run reads, converted alone (other columns may hold text); None: every column."""
         return self.channel_columns
 
+    def time_columns(self) -> tuple[str, ...]:
+        """The CSV columns that may hold dates or clock times (read as seconds)."""
+        return ()
+
     def open_rows(self) -> tuple[NpyLayout, list[str]]:
         """The file's layout and its column names (a CSV converted to ``.npy`` first)."""
         self.path = check_input_file(self.path, "data.path", "a .npy or .csv of rows")
@@ -153,7 +158,7 @@ class RowFileDataModule(L.LightningDataModule):
         source, kept = self.path, None
         if self.path.suffix != ".npy":
             kept = self.csv_columns()
-            source = csv_to_npy(self.path, self.cache_dir, kept)
+            source = csv_to_npy(self.path, self.cache_dir, kept, time_columns=self.time_columns())
         try:
             layout = npy_layout(source)
         except (ValueError, OSError) as error:
@@ -226,14 +231,21 @@ def content_key(path: Path) -> str:
     return digest.hexdigest()
 
 
-def csv_to_npy(path: Path, cache_dir: Path | None, columns: list[str] | None = None, chunk_rows: int = 100_000) -> Path:
+def csv_to_npy(
+    path: Path, cache_dir: Path | None, columns: list[str] | None = None, chunk_rows: int = 100_000,
+    time_columns: tuple[str, ...] = (),
+) -> Path:
     """Convert a numeric CSV (header row; empty cells NaN) to float64 ``.npy`` once; reuse it while the CSV's bytes are the same.
 
     ``columns``: convert only these, in this order (the others are not parsed, so they may hold
-    text); None: every column. The conversion is written under a name of its own and renamed into
-    place, so runs converting one CSV at once never read or clobber each other's half-written file.
+    text); None: every column. ``time_columns`` may hold dates or clock times, read as seconds
+    (:func:`~sfmnet.readers.clock_times.clock_seconds`: Unix time where a date is given). The conversion is written
+    under a name of its own and renamed into place, so runs converting one CSV at once never read or clobber each
+    other's half-written file.
     """
-    selection = "" if columns is None else "-" + hashlib.blake2b(",".join(columns).encode(), digest_size=8).hexdigest()
+    chosen = (columns, time_columns) != (None, ())
+    key = ",".join(columns or []) + ";" + ",".join(time_columns)
+    selection = "-" + hashlib.blake2b(key.encode(), digest_size=8).hexdigest() if chosen else ""
     cache = (cache_dir or path.parent / ".sfmnet-cache") / f"{path.stem}-{content_key(path)}{selection}.npy"
     if cache.is_file():
         return cache
@@ -252,7 +264,8 @@ def csv_to_npy(path: Path, cache_dir: Path | None, columns: list[str] | None = N
     os.close(handle)
     try:
         out = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.float64, shape=(rows, len(index)))
-        written = fill_rows(out, source, header, index, chunk_rows)
+        times = {header.index(name): ClockTimes() for name in time_columns if name in header}
+        written = fill_rows(out, source, header, index, chunk_rows, times)
         out.flush()
         del out
         if written != rows:
@@ -264,23 +277,33 @@ def csv_to_npy(path: Path, cache_dir: Path | None, columns: list[str] | None = N
     return cache
 
 
-def fill_rows(out: np.ndarray, source: DelimitedFile, header: list[str], index: list[int], chunk_rows: int) -> int:
-    """Parse the CSV's data rows' columns ``index`` into ``out``, ``chunk_rows`` at a time; returns the rows written."""
+def fill_rows(
+    out: np.ndarray, source: DelimitedFile, header: list[str], index: list[int], chunk_rows: int,
+    times: dict[int, ClockTimes],
+) -> int:
+    """Parse the CSV's data rows' columns ``index`` into ``out``, ``chunk_rows`` at a time (dates or clock times allowed
+    in columns ``times``); returns the rows written."""
     records = source.header_and_rows()[1]
     written = 0
     while chunk := list(itertools.islice(records, chunk_rows)):
         if written + len(chunk) > len(out):
             raise SfmnetError(f"{source.path} changed while it was being converted: run again once it is written")
-        out[written : written + len(chunk)] = [row_values(source, header, index, line, cells) for line, cells in chunk]
+        out[written : written + len(chunk)] = [row_values(source, header, index, line, cells, times) for line, cells in chunk]
         written += len(chunk)
     return written
 
 
-def row_values(source: DelimitedFile, header: list[str], index: list[int], line: int, cells: list[str]) -> list[float]:
-    """One data row's numbers in columns ``index`` (NaN where empty); a short or long row, or a non-numeric cell
-    among them, is refused naming its line."""
+def row_values(
+    source: DelimitedFile, header: list[str], index: list[int], line: int, cells: list[str],
+    times: dict[int, ClockTimes],
+) -> list[float]:
+    """One data row's numbers in columns ``index`` (NaN where empty; seconds for a date or clock time in a column of
+    ``times``); a short or long row, or a non-numeric cell among them, is refused naming its line."""
     source.check_width(line, cells, len(header))
     values = [source.number(cells[column]) for column in index]
+    for k, column in enumerate(index):
+        if values[k] is None and column in times and (clock := times[column](cells[column])) is not None:
+            values[k] = clock[0]
     if None in values:
         column = index[values.index(None)]
         hint = decimal_comma_hint([cells[column]]) or clock_time_hint([cells[column]])

@@ -85,6 +85,9 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         wanted = [*self.channel_columns, *self.load_columns, *([self.time_column] if self.time_column else [])]
         return list(dict.fromkeys(wanted))
 
+    def time_columns(self) -> tuple[str, ...]:
+        return (self.time_column,) if self.time_column else ()
+
     def build(self) -> CalibrationData:
         magnitude = calibration_magnitude(self.magnitude, self.mass, self.gravity)
         layout, names = self.open_rows()

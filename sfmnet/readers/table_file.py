@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import difflib
-import re
 import zipfile
-from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -13,6 +11,7 @@ import numpy as np
 
 from sfmnet.data.rows import IMPLAUSIBLE
 from sfmnet.errors import SfmnetError
+from sfmnet.readers.clock_times import clock_time_column, clock_time_hint
 from sfmnet.preprocessing.far_cells import FAR_CELLS_REMEDY, far_cells, far_cells_what
 from sfmnet.readers.delimited import decimal_comma_hint, open_delimited
 from sfmnet.readers.input_file import check_input_file
@@ -70,6 +69,15 @@ class Table:
         if name not in self.columns and name not in self.cells:
             self.require([name], role)
         return np.array(self.cells[name] if name in self.cells else self.columns[name], dtype=object)
+
+    def times(self, name: str, scale: float) -> np.ndarray:
+        """Time column ``name`` in seconds: its numbers times ``scale`` (``data.time_unit``), or its dates or clock times
+        (:mod:`sfmnet.readers.clock_times`) from the first row's, whatever the unit."""
+        if name in self.cells:
+            seconds = clock_time_column(self.cells[name], self.where)
+            if seconds is not None:
+                return seconds
+        return self.numeric([name], "time")[:, 0] * scale
 
     def numeric(self, names: list[str], role: str) -> np.ndarray:
         """``rows x len(names)`` float64, after :meth:`require`."""
@@ -217,17 +225,6 @@ def check_finite(values: np.ndarray, names: list[str], table: Table, role: str) 
         np.abs(values) > IMPLAUSIBLE, values, names, table, f"{role} values beyond {IMPLAUSIBLE:.0e}",
         "a corrupt cell or a unit slip; repair those rows", True,
     )
-
-
-# A date or a clock time as loggers write them: 2026-12-07T13:52:41, 2026-12-07 13:52, 13:52:41.250.
-CLOCK_TIME = re.compile(r"(\d{4}-\d{2}-\d{2}([T ]\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?)?.*|\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?)")
-
-
-def clock_time_hint(cells: Iterable[str]) -> str:
-    """What to do when refused ``cells`` are dates or clock times (a time column must be numbers)."""
-    if any(CLOCK_TIME.fullmatch(cell) for cell in cells):
-        return " (dates or clock times: give times as numbers of seconds, e.g. from the first row, or as Unix time)"
-    return ""
 
 
 def check_far_cells(values: np.ndarray, names: list[str], table: Table, role: str) -> None:

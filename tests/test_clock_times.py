@@ -1,0 +1,101 @@
+"""Time columns as loggers write them (ISO 8601 dates and times, clock times) are read as seconds, in memory, streamed
+and through the Python API, and find the same static intervals as the same times in seconds."""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import sfmnet
+from sfmnet.errors import SfmnetError
+from sfmnet.readers.clock_times import clock_seconds, clock_time_column
+from sfmnet.simulators.simulated_stream import write_stream_csv
+from tests.test_static_intervals import MASS, calibrate, stream
+
+START = datetime.datetime(2026, 12, 7, 23, 59, 50)
+
+
+@pytest.mark.parametrize(
+    "cell,day,seconds",
+    [
+        ("2026-12-07T13:52:41.250", 20794, 49961.25),
+        ("2026-12-07 13:52:41,250", 20794, 49961.25),
+        ("2026-12-07T13:52:41.250Z", 20794, 49961.25),
+        ("2026-12-07T14:52:41.250+01:00", 20794, 49961.25),
+        ("2026-12-07T08:52:41.250-0500", 20794, 49961.25),
+        ("13:52:41.250", 0, 49961.25),
+        ("13:52", 0, 49920.0),
+    ],
+)
+def test_dates_and_clock_times_are_read_as_a_day_and_seconds_into_it(cell: str, day: int, seconds: float):
+    # Day 20794 is 2026-12-07; 0, no date given.
+    assert clock_seconds(cell) == (day, pytest.approx(seconds, abs=1e-9), day > 0)
+
+
+@pytest.mark.parametrize("cell", ["2026-13-40T10:00:00", "13:52:41 CET", "0.25", "n/a", ""])
+def test_other_cells_are_not_times(cell: str):
+    assert clock_seconds(cell) is None
+
+
+def test_clock_times_that_pass_midnight_keep_counting():
+    seconds = clock_time_column(["23:59:59.500", "23:59:59.900", "00:00:00.300", "00:00:01.000"], str)
+    np.testing.assert_allclose(seconds, [0.0, 0.4, 0.8, 1.5])
+
+
+def test_a_time_column_mixing_dates_and_clock_times_is_refused():
+    with pytest.raises(SfmnetError, match="gives dates on some rows and clock times alone on others"):
+        clock_time_column(["2026-12-07T23:59:59", "00:00:01"], str)
+
+
+def rewrite_time(path: Path, out: Path, stamp) -> None:
+    rows = list(csv.reader(path.open()))
+    for row in rows[1:]:
+        row[0] = stamp(START + datetime.timedelta(milliseconds=round(float(row[0]) * 1000)))
+    csv.writer(out.open("w", newline="")).writerows(rows)
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """One continuous recording (passing midnight) with its time in seconds, as ISO 8601 stamps with an offset from
+    UTC, and as clock times alone."""
+    folder = tmp_path_factory.mktemp("clock")
+    recording, _ = stream(poses=10)
+    paths = {"seconds": folder / "seconds.csv", "iso": folder / "iso.csv", "clock": folder / "clock.csv"}
+    write_stream_csv(recording, paths["seconds"])
+    rewrite_time(paths["seconds"], paths["iso"], lambda t: t.isoformat(timespec="milliseconds") + "+01:00")
+    rewrite_time(paths["seconds"], paths["clock"], lambda t: t.strftime("%H:%M:%S.%f")[:-3])
+    return paths
+
+
+@pytest.mark.parametrize("form,experiment", [("iso", "calibrate_csv"), ("clock", "calibrate_stream")])
+def test_a_time_column_of_dates_or_clock_times_finds_the_intervals_of_seconds(
+    recordings: dict[str, Path], tmp_path: Path, form: str, experiment: str
+):
+    reference = calibrate(recordings["seconds"], tmp_path / "seconds", experiment=experiment)
+    stamped = calibrate(recordings[form], tmp_path / form, experiment=experiment)
+    assert stamped["static/intervals"] == reference["static/intervals"] >= 10
+    assert stamped["static/rows_kept"] == reference["static/rows_kept"]
+    matrices = [np.array(json.loads((tmp_path / run / "calibration.json").read_text())["matrix"]) for run in ("seconds", form)]
+    np.testing.assert_allclose(matrices[1], matrices[0], rtol=0, atol=1e-9 * np.abs(matrices[0]).max())
+
+
+def test_a_column_of_clock_times_left_unnamed_is_pointed_out(recordings: dict[str, Path], tmp_path: Path):
+    calibrate(recordings["iso"], tmp_path / "run", "data.time_column=null")
+    warnings = json.loads((tmp_path / "run" / "calibration.json").read_text())["warnings"]
+    assert any(w.startswith("column 'time' holds dates or clock times and was not read") for w in warnings)
+
+
+def test_the_python_api_reads_numpy_and_python_dates_as_seconds_from_the_first():
+    recording, _ = stream(poses=10)
+    seconds = recording.time.numpy()
+    readings, loads = recording.readings.numpy(), recording.known_loads.numpy()
+    reference = sfmnet.calibrate(readings, MASS * 9.80665, loads=loads, time=seconds)
+    stamps = np.datetime64("2026-12-07T13:00", "ns") + (seconds * 1e9).round().astype("timedelta64[ns]")
+    for time in (stamps, stamps - stamps[0], list(stamps.astype("datetime64[us]").tolist())):
+        calibration = sfmnet.calibrate(readings, MASS * 9.80665, loads=loads, time=time)
+        np.testing.assert_allclose(calibration.matrix, reference.matrix, rtol=0, atol=1e-9 * np.abs(reference.matrix).max())
