@@ -14,8 +14,11 @@ import sys
 import traceback
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 from sfmnet.errors import FitInterrupted, SfmnetError
+
+T = TypeVar("T")
 
 USAGE = """\
 usage: python -m sfmnet [train] [key=value ...] [-m]
@@ -73,15 +76,15 @@ def unwrapped_user_errors() -> Iterator[None]:
 
 
 def exit_on_user_error(
-    action: Callable[[], object], refused: Callable[[], None] | None = None, run_dir: Path | None = None
-) -> None:
+    action: Callable[[], T], refused: Callable[[], None] | None = None, run_dir: Path | None = None
+) -> T:
     """Run ``action``; a user error becomes one line on stderr and exit status 2 (an interrupted fit: 130).
 
     ``refused``: run after a user error other than an interruption (e.g. undo the run directory's claim).
     ``run_dir``: where a Ctrl-C outside the fit (while results are written) finds the checkpoints to name.
     """
     try:
-        action()
+        return action()
     except KeyboardInterrupt:
         if debug_enabled():
             raise
@@ -142,16 +145,19 @@ def run_sweep_job(action: Callable[[], object], job_dir: Path) -> None:
     exit_on_user_error(job, run_dir=job_dir)
 
 
-def check_train_arguments(args: list[str]) -> None:
+def check_train_arguments(args: list[str]) -> list[str]:
     """Typos and bad values, caught before Hydra starts (a DDP worker re-enters checked); the run directory is claimed
-    on Hydra's parsed config (:mod:`sfmnet.training.run_directory`)."""
+    on Hydra's parsed config (:mod:`sfmnet.training.run_directory`). Returns the overrides for Hydra (a sweep's keys
+    that only its swept configs define, forced: :func:`~sfmnet.config_check.check_overrides`)."""
     if os.environ.get("LOCAL_RANK", "0") != "0" or "--help" in args or "-h" in args:
-        return
+        return args
     refuse_bare_words(args)
     from sfmnet.config_check import check_overrides
 
     sweep = any(flag in args for flag in MULTIRUN_FLAGS)
-    check_overrides([a for a in args if a not in MULTIRUN_FLAGS], config_dir(), sweep=sweep)
+    return [*check_overrides([a for a in args if a not in MULTIRUN_FLAGS], config_dir(), sweep=sweep), *(
+        a for a in args if a in MULTIRUN_FLAGS
+    )]
 
 
 def train_command() -> None:
@@ -251,7 +257,7 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(2)
     if command == "train":
         args = [quote_plain_value(arg) for arg in args]
-        exit_on_user_error(lambda: check_train_arguments(args))
+        args = exit_on_user_error(lambda: check_train_arguments(args))
     if command == "train" and any(flag in args for flag in MULTIRUN_FLAGS):
         # Hydra's parser takes -m only before or after all the overrides, not among them.
         args = ["-m", *(a for a in args if a not in MULTIRUN_FLAGS)]

@@ -8,6 +8,7 @@ Hydra's sweeper will expand it, and one without ``-m`` is told to add it.
 from __future__ import annotations
 
 import difflib
+import itertools
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -89,7 +90,7 @@ def swept_values(override, item: str, options: list[str]) -> list[str]:
         raise SfmnetError(f"{item} is a sweep that -m cannot list: give the values with a,b or choice(...) or range(...)") from None
 
 
-def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) -> None:
+def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) -> list[str]:
     """Raise :class:`SfmnetError` naming the first override that Hydra cannot read, that selects or sets something
     that does not exist, or whose value refers to a key that does not exist; or if the run directory cannot be written.
 
@@ -97,6 +98,11 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
     keys (``data.nosie_fraction=0.1``) against the config they would change. In a sweep (``-m``)
     every value of a swept group is checked, and the rest against the first combination.
     ``hydra.*`` keys and ``+``/``~`` overrides are left to Hydra.
+
+    Returns:
+        ``overrides``, where a sweep over groups sets a key that only the swept configs define, with that setting forced
+        (``++key=value``): Hydra composes the sweep's own config from the default groups first, and would refuse the key
+        there, though every job has it (checked here for every combination of the swept groups).
     """
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
@@ -107,6 +113,8 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
     first_job: list[str] = []
     given: set[str] = set()
     emptied: list[str] = []
+    swept_groups: dict[str, list[str]] = {}
+    plain_settings: dict[str, str] = {}
     for item in overrides:
         if item.startswith("-") or "=" not in item:
             continue
@@ -135,8 +143,12 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
                         f"unknown {key} '{choice}'{suggestion(choice, groups[key])}: choose one of {', '.join(groups[key])}"
                     )
             selections.append(f"{key}={values[0]}")
+            if override.is_sweep_override():
+                swept_groups[key] = values
         elif key not in groups:
             settings.append(key)
+            if not override.is_sweep_override():
+                plain_settings[key] = item
             if override.value() == {}:
                 emptied.append(key)
     with initialize_config_dir(config_dir=config_dir, version_base="1.3"):
@@ -163,6 +175,7 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
             job = compose(config_name="train", overrides=first_job, return_hydra_config=True)
         except (HydraException, OmegaConfBaseException) as error:
             raise SfmnetError(f"Hydra cannot apply these overrides: {' '.join(str(error).split())}") from None
+        forced = keys_only_swept_groups_define(selections, swept_groups, plain_settings) if swept_groups else set()
     task = OmegaConf.masked_copy(job, [key for key in job if key != "hydra"])
     try:
         check_config(task)
@@ -171,3 +184,27 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
         pass
     output = "hydra.sweep.dir" if sweep else "hydra.run.dir"
     check_writable_dir(Path(OmegaConf.select(job, output)), output)
+    return [f"++{item}" if item in forced else item for item in overrides]
+
+
+def keys_only_swept_groups_define(selections: list[str], swept: dict[str, list[str]], settings: dict[str, str]) -> set[str]:
+    """The overrides among ``settings`` (key -> ``key=value``, not swept) whose key the default groups' config lacks
+    but every combination of the ``swept`` groups' configs has (inside Hydra's ``compose`` context); one line naming
+    the first combination that lacks one."""
+    from hydra import compose
+
+    def keys_of(choices: list[str]) -> set[str]:
+        return set(flat_keys(OmegaConf.to_container(compose(config_name="train", overrides=choices), resolve=False)))
+
+    fixed = [choice for choice in selections if choice.partition("=")[0] not in swept]
+    outside = [key for key in settings if key not in keys_of(fixed)]
+    for combination in itertools.product(*swept.values()) if outside else ():
+        choices = [f"{group}={value}" for group, value in zip(swept, combination)]
+        keys = keys_of([*fixed, *choices])
+        for key in outside:
+            if key not in keys:
+                raise SfmnetError(
+                    f"config key '{key}' is not in the jobs with {' '.join(choices)}: sweep over configs that all have "
+                    "it, or run those jobs apart"
+                )
+    return {settings[key] for key in outside}

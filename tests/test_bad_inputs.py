@@ -750,6 +750,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "config value checked before Hydra starts": (overrides_of("threads=0"), r"threads is 0: give a whole number >= 1"),
     "+ on a key that exists": (overrides_of("+seed=3"), r"Hydra cannot apply these overrides: Could not append to config. An item is already at 'seed'"),
     "unknown config key": (lambda t: (lambda: check_overrides(["experiment=lord3dof", "data.nosie_fraction=0.1"], config_dir())), r"unknown config key 'data.nosie_fraction' \(did you mean 'data.noise_fraction'\?\)"),
+    "a key only some swept experiments have": (
+        overrides_of("experiment=mkv_pca,fingertip", "eval.closed_loop=null", sweep=True),
+        r"^config key 'eval.closed_loop' is not in the jobs with experiment=fingertip: sweep over configs that all have it",
+    ),
     "unknown experiment in a sweep": (lambda t: (lambda: check_overrides(["experiment=fingertip,lord3"], config_dir(), sweep=True)), r"unknown experiment 'lord3' \(did you mean 'lord3dof'\?\)"),
     "unknown experiment": (lambda t: (lambda: check_overrides(["experiment=lord3", "seed=1"], config_dir())), r"unknown experiment 'lord3'"),
 }

@@ -65,6 +65,14 @@ def test_sweep_syntax_passes_with_m(overrides: list[str]):
     check_overrides(overrides, config_dir(), sweep=True)
 
 
+def test_a_key_every_swept_experiment_has_but_the_default_lacks_is_forced_for_hydra():
+    """Hydra composes a sweep's own config from the default experiment (fingertip, no eval.closed_loop) before any
+    job's, and refused `-m experiment=mkv_pca,mkv_compare eval.closed_loop=null` though every job has the key."""
+    given = ["experiment=mkv_pca,mkv_compare", "eval.closed_loop=null", "seed=0"]
+    assert check_overrides(given, config_dir(), sweep=True) == [given[0], "++eval.closed_loop=null", "seed=0"]
+    assert check_overrides(["experiment=mkv_pca", "eval.closed_loop=null"], config_dir()) == ["experiment=mkv_pca", "eval.closed_loop=null"]
+
+
 def test_a_path_with_unusual_letters_runs_when_quoted(tmp_path: Path):
     """Non-ASCII letters, '=' and brackets: Hydra takes them quoted, as the refusal of the unquoted form says."""
     session = tmp_path / "séance=[1].csv"
