@@ -32,8 +32,17 @@ def parse_options(args: list[str]) -> dict[str, str]:
 
 
 def output_names(axes: list[str], existing: list[str]) -> list[str]:
-    """The load columns' names: the axes, suffixed ``_calibrated`` where the input already uses the name."""
-    return [f"{axis}_calibrated" if axis in existing else axis for axis in axes]
+    """The load columns' names: the axes, suffixed ``_calibrated`` where the input already uses the name, and
+    ``_calibrated_2``, ``_calibrated_3``, ... where it uses that too (an earlier output applied again: a reader by name would
+    otherwise find the old loads first)."""
+    names = []
+    for axis in axes:
+        name, copy = axis, 1
+        while name in existing or name in names:
+            copy += 1
+            name = f"{axis}_calibrated" if copy == 2 else f"{axis}_calibrated_{copy - 1}"
+        names.append(name)
+    return names
 
 
 def apply_calibration(

@@ -37,6 +37,8 @@ class CommandLearner:
         mean_, scale_: ``m``, the standardisation of ``[sensors; one-hot commands]``.
         singular_values_: of the standardised training vectors.
         n_features_in_: ``p_s``, the sensors.
+        feature_names_in_: the sensors' column names, where ``sensors`` was a table with string column names (a pandas
+            DataFrame); a table given to ``predict`` is then read by those names, in any order.
         learner_: the fitted :class:`~sfmnet.models.sensorimotor_learner.SensorimotorLearner`.
 
     The confidence is ``1 / (1 + e)``, ``e`` the sensors' misfit to the subspace: with a rank at least
@@ -89,6 +91,7 @@ class CommandLearner:
 
         if self.learner not in LEARNERS:
             raise SfmnetError(f"learner is '{self.learner}': use one of {', '.join(LEARNERS)}")
+        names = column_names(sensors)
         readings = finite_matrix(sensors, "sensors")
         labels = np.asarray(commands, dtype=object)
         labels = labels[:, None] if labels.ndim == 1 else labels
@@ -106,7 +109,7 @@ class CommandLearner:
         data = SensorimotorData(
             train=[Episode(readings, codes)],
             test=[],
-            sensors=[f"s{i}" for i in range(readings.shape[1])],
+            sensors=names or [f"s{i}" for i in range(readings.shape[1])],
             commands=[Command(f"c{i}", alphabet) for i, alphabet in enumerate(alphabets)],
         )
         overrides = {"model.rank": self.rank, "model.rank_rule": self.rank_rule, "model.seed": self.seed}
@@ -128,12 +131,26 @@ class CommandLearner:
         self.mean_, self.scale_ = model.column_mean.numpy(), model.column_scale.numpy()
         self.singular_values_ = model.singular_values.numpy()
         self.n_features_in_ = readings.shape[1]
+        if names is not None:
+            self.feature_names_in_ = np.array(names, dtype=object)
+        elif hasattr(self, "feature_names_in_"):
+            del self.feature_names_in_
         return self
 
     def _read(self, sensors: Any) -> Any:
         if not hasattr(self, "learner_"):
             raise SfmnetError("this CommandLearner is not fitted yet: call fit(sensors, commands) first")
+        names = column_names(sensors)
         readings = finite_matrix(sensors, "sensors")
+        fitted = list(getattr(self, "feature_names_in_", []))
+        if names is not None and fitted and names != fitted:
+            # By name, as apply matches a calibration's channels: a table's columns in another order are no other sensors.
+            missing = [name for name in fitted if name not in names]
+            if missing:
+                raise SfmnetError(
+                    f"sensors has no column {', '.join(missing)}: the learner was fitted on columns {', '.join(fitted)}"
+                )
+            readings = readings[:, [names.index(name) for name in fitted]]
         if readings.shape[1] != self.n_features_in_:
             raise SfmnetError(f"sensors has {readings.shape[1]} columns but the learner was fitted on {self.n_features_in_}")
         return self.learner_.read_commands(torch.from_numpy(readings))
@@ -153,6 +170,14 @@ class CommandLearner:
     def transform(self, sensors: Any) -> np.ndarray:
         """The full ``[sensors; one-hot commands]`` vectors the learner reconstructs from ``sensors``: ``f x m``."""
         return self._read(sensors).reconstruction.numpy()
+
+
+def column_names(values: Any) -> list[str] | None:
+    """A table's column names (a pandas DataFrame's), where every one is a string; else None."""
+    columns = getattr(values, "columns", None)
+    if columns is None or not all(isinstance(name, str) for name in columns):
+        return None
+    return list(columns)
 
 
 def finite_matrix(values: Any, name: str) -> np.ndarray:

@@ -587,6 +587,30 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "sensorimotor: empty command after a blank line": (
         lambda t: sensorimotor_empty_command(t, "", ["go", "stop"], blank_lines=1), r"has 1 empty cells in command column 'cmd' \(first: line 6\)"
     ),
+    # A hostile tester's (primordial learning on their own logs): each ran to exit 0 with a meaningless score.
+    "sensorimotor: the command also a sensor": (
+        lambda t: sensorimotor(t, log_text(300), ["a", "b", "cmd"], ["cmd"]), r"column 'cmd' is named as both a sensor and a command column"
+    ),
+    "sensorimotor: a sensor named twice": (
+        lambda t: sensorimotor(t, log_text(300), ["a", "a", "b"], ["cmd"]), r"column 'a' is named as a sensor column twice"
+    ),
+    "sensorimotor: a command that never varies": (
+        lambda t: sensorimotor(t, log_text(300).replace(",stop\n", ",go\n").replace(",turn\n", ",go\n"), ["a", "b"], ["cmd"]),
+        r"command column cmd takes one value \('go'\) on every training row: there is no mapping from sensors to commands",
+    ),
+    "sensorimotor: nothing held out": (
+        lambda t: (lambda: (t / "log.csv").write_text(log_text(300)) and SensorimotorCsvDataModule(
+            str(t / "log.csv"), ["a", "b"], ["cmd"], test_fraction=0.001).setup()),
+        r"data.test_fraction=0.001 holds out none of the 300 rows: give at least 0.0033",
+    ),
+    "sensorimotor: no header line": (
+        lambda t: sensorimotor(t, log_text(300).split("\n", 1)[1], ["a", "b"], ["cmd"]),
+        r"the first line of .*log.csv holds numbers \(0.6370, 0.2698, go\), not column names: add a first line naming the columns",
+    ),
+    "sensorimotor: a column spelt otherwise": (
+        lambda t: sensorimotor(t, log_text(300).replace("a,b,cmd", "Wheel L,b,cmd"), ["wheel_l", "b"], ["cmd"]),
+        r"sensor column 'wheel_l' is not in .* \(did you mean 'Wheel L'\?\)",
+    ),
     "rows: stray quote": (lambda t: row_file(t, "rows.csv", 'a,b\n1,2\n"3,4\n'), r"rows.csv line 3: unexpected end of data"),
     "rows: quoted decimal comma": (
         lambda t: row_file(t, "rows.csv", 'a,b\n1,2\n3,"4,5"\n'),

@@ -28,6 +28,13 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path):
     instantiate(cfg.trainer, logger=False, enable_checkpointing=False)
 
 
+@pytest.mark.parametrize("experiment", ["wall_following", "mkv_compare"])
+def test_a_comparison_s_autoencoder_takes_the_main_learner_s_rank(experiment: str):
+    """A hostile tester's: model.rank=3 left the autoencoder at its own rank 9, and its angle to PCA was to PCA at 9."""
+    cfg = compose_config([f"experiment={experiment}", "model.rank=3", "model.rank_rule=largest_ratio"])
+    assert (cfg.baselines.linear_autoencoder.rank, cfg.baselines.linear_autoencoder.rank_rule) == (3, "largest_ratio")
+
+
 def test_default_experiment_is_fingertip():
     assert compose_config([]).experiment_name == "fingertip"
 

@@ -81,6 +81,11 @@ def test_csv_contract_end_to_end(tmp_path: Path):
     given = np.array([[float(r[a]) for a in ["fx", "fy", "fz"]] for r in known])
     percent = 100 * np.sqrt(np.mean((applied_known - given) ** 2)) / np.sqrt(np.mean(given**2))
     assert math.isclose(percent, metrics["goodness/known_load_pct"], rel_tol=1e-3)
+    # Applied again to its own output (a hostile tester's: fx_calibrated twice, and a reader by name found the old).
+    again = tmp_path / "loads_again.csv"
+    assert sfmnet("apply", f"calibration={run_dir / 'calibration.json'}", f"input={output}", f"output={again}").returncode == 0
+    header = next(csv.reader(again.open()))
+    assert header[-6:] == [*(f"{a}_calibrated" for a in ["fx", "fy", "fz"]), *(f"{a}_calibrated_2" for a in ["fx", "fy", "fz"])]
 
 
 def test_npz_input(tmp_path: Path):

@@ -186,6 +186,34 @@ def test_command_learner_errors_and_the_autoencoder(tmp_path: Path):
             sfmnet.CommandLearner(**settings).fit(sensors, commands)
 
 
+class Frame:
+    """What a pandas DataFrame offers a learner: named columns and its values as an array (pandas is not required)."""
+
+    def __init__(self, values: np.ndarray, columns: list[str]) -> None:
+        self.values, self.columns = values, columns
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return self.values if dtype is None else self.values.astype(dtype)
+
+
+def test_command_learner_reads_a_table_by_its_column_names():
+    """A hostile tester's: fitted on a DataFrame, predicting on its columns reordered scored 0.19 against 0.99, by
+    position, with no warning (scikit-learn refuses; apply matches a calibration's channels by name)."""
+    generator = np.random.default_rng(1)
+    sensors = generator.normal(size=(400, 3)) * [1.0, 5.0, 0.2]
+    commands = np.where(sensors[:, 0] > 0, "go", "stop")
+    learner = sfmnet.CommandLearner(rank=2).fit(Frame(sensors, ["left", "right", "gyro"]), commands)
+    assert list(learner.feature_names_in_) == ["left", "right", "gyro"]
+    reordered = Frame(sensors[:, [2, 0, 1]], ["gyro", "left", "right"])
+    np.testing.assert_array_equal(learner.predict(reordered), learner.predict(sensors))
+    with pytest.raises(sfmnet.SfmnetError, match="sensors has no column right: the learner was fitted on columns left, right, gyro"):
+        learner.predict(Frame(sensors, ["left", "rigth", "gyro"]))
+    with pytest.raises(sfmnet.SfmnetError, match="model.rank is 4 but there are 3 sensors: commands read from the sensors alone are undetermined"):
+        sfmnet.CommandLearner(rank=4).fit(sensors, commands)
+    with pytest.raises(sfmnet.SfmnetError, match=r"command column c0 takes one value \('go'\) on every training row"):
+        sfmnet.CommandLearner().fit(sensors, np.full(400, "go"))
+
+
 def test_integer_counts_and_wrong_widths_in_apply(tmp_path: Path):
     _, table = read_session(write_session_path(tmp_path))
     cal = sfmnet.calibrate(table[:, 1:7], magnitude=9.81, loads=table[:, 7:10])

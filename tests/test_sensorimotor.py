@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -95,7 +96,11 @@ def test_command_metrics_on_known_cases():
     assert direction_accuracy(truth, predicted) == pytest.approx(3 / 4)
     assert cohen_kappa(truth, truth) == 1.0
     assert auroc(np.array([0.1, 0.2, 0.8, 0.9]), np.array([0, 0, 1, 1])) == 1.0
-    assert auroc(np.array([0.5, 0.5]), np.array([0, 1])) == 0.5
+    # Undefined, not 1.0 or 0.5: a constant command agrees with chance fully, a constant confidence ranks nothing
+    # (a hostile tester's constant log scored kappa 1.00; least squares, with no confidence, AUROC 0.5).
+    assert math.isnan(cohen_kappa(np.zeros(5), np.zeros(5)))
+    assert math.isnan(auroc(np.array([0.5, 0.5]), np.array([0, 1])))
+    assert math.isnan(when_f1(np.zeros(3), np.zeros(3)))
 
 
 def test_confidence_auroc_by_hand():

@@ -138,16 +138,24 @@ class FixedSensorimotorDataModule(SensorimotorDataModule):
 
 
 def check_training_vectors(data: SensorimotorData) -> None:
-    """Refuse what no linear learner can use: constant sensors, fewer samples than columns."""
+    """Refuse what no linear learner can use: constant sensors, a command that never varies, fewer samples than
+    columns."""
     sensors = np.concatenate([e.sensors for e in data.train])
     # The range, not the standard deviation, which rounding leaves at ~1e-13 for a constant column of most values.
     constant = [name for name, spread in zip(data.sensors, np.ptp(sensors, axis=0)) if spread == 0]
     if constant:
         raise SfmnetError(
             f"sensor column {', '.join(constant)} is constant in the training data: it carries no information; "
-            "leave it out of data.sensor_columns (a CSV log), or record longer or more varied runs (the simulated "
-            "robot: more data.steps or data.train_rooms)"
+            "leave it out of the sensors (in a CSV log, of data.sensor_columns), or record longer or more varied runs "
+            "(the simulated robot: more data.steps or data.train_rooms)"
         )
+    commands = np.concatenate([e.commands for e in data.train])
+    for i, command in enumerate(data.commands):
+        if len(np.unique(commands[:, i])) < 2:
+            raise SfmnetError(
+                f"command column {command.name} takes one value ({command.labels[commands[0, i]]!r}) on every training "
+                "row: there is no mapping from sensors to commands to learn; give a log in which the commands vary"
+            )
     columns = len(data.columns)
     if len(sensors) <= columns:
         raise SfmnetError(

@@ -12,19 +12,21 @@ def accuracy(truth: np.ndarray, predicted: np.ndarray) -> float:
 
 
 def cohen_kappa(truth: np.ndarray, predicted: np.ndarray) -> float:
-    """Agreement beyond chance: ``(p_o - p_e) / (1 - p_e)``, ``p_e`` from the two label frequencies."""
+    """Agreement beyond chance: ``(p_o - p_e) / (1 - p_e)``, ``p_e`` from the two label frequencies; NaN (undefined)
+    where both give one label throughout, so that chance agrees fully."""
     labels = np.union1d(truth, predicted)
     observed = (truth == predicted).mean()
     expected = sum((truth == label).mean() * (predicted == label).mean() for label in labels)
-    return float((observed - expected) / (1 - expected)) if expected < 1 else 1.0
+    return float((observed - expected) / (1 - expected)) if expected < 1 else float("nan")
 
 
 def when_f1(truth: np.ndarray, predicted: np.ndarray) -> float:
-    """F1 of "acting" (``!= 0``), whatever the direction: does the learner act when the human does?"""
+    """F1 of "acting" (``!= 0``), whatever the direction: does the learner act when the human does? NaN (undefined)
+    where neither ever acts."""
     true_act, predicted_act = truth != 0, predicted != 0
     hits = (true_act & predicted_act).sum()
     total = true_act.sum() + predicted_act.sum()
-    return float(2 * hits / total) if total else 1.0
+    return float(2 * hits / total) if total else float("nan")
 
 
 def direction_accuracy(truth: np.ndarray, predicted: np.ndarray) -> float:
@@ -34,9 +36,10 @@ def direction_accuracy(truth: np.ndarray, predicted: np.ndarray) -> float:
 
 
 def auroc(scores: np.ndarray, positives: np.ndarray) -> float:
-    """Area under the ROC curve of ``scores`` for flagging ``positives`` (Mann-Whitney, ties counted half)."""
+    """Area under the ROC curve of ``scores`` for flagging ``positives`` (Mann-Whitney, ties counted half); NaN
+    (undefined) without both classes, or where every score is the same (a learner with no confidence to rank by)."""
     positives = positives.astype(bool)
-    if positives.all() or not positives.any():
+    if positives.all() or not positives.any() or np.ptp(scores) == 0:
         return float("nan")
     order = np.argsort(scores, kind="mergesort")
     ranks = np.empty(len(scores))

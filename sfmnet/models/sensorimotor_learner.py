@@ -85,14 +85,22 @@ class SensorimotorLearner(nn.Module, ABC):
         self.singular_values = torch.linalg.svdvals(standardised)
         if self.rank is None:
             generator = torch.Generator().manual_seed(self.seed)
-            self.rank = (
+            chosen = (
                 parallel_analysis_rank(standardised, generator)
                 if self.rank_rule == "parallel_analysis"
                 else largest_ratio_rank(self.singular_values)
             )
+            # Above the sensors' count the sensors alone leave a subspace's coordinates undetermined.
+            self.rank = min(chosen, self.sensor_count)
         if not 1 <= self.rank < vectors.shape[1]:
             raise SfmnetError(
                 f"model.rank is {self.rank} but the vectors have {vectors.shape[1]} columns: choose 1 to {vectors.shape[1] - 1}"
+            )
+        if self.rank > self.sensor_count:
+            raise SfmnetError(
+                f"model.rank is {self.rank} but there are {self.sensor_count} sensors: commands read from the sensors "
+                f"alone are undetermined above rank {self.sensor_count}, and the confidence ranks nothing from it up; "
+                f"choose 1 to {self.sensor_count} (below {self.sensor_count} for a confidence)"
             )
         self.start(standardised)
 

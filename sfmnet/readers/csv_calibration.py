@@ -16,7 +16,9 @@ from sfmnet.preprocessing.static_intervals import StaticIntervals
 from sfmnet.preprocessing.stuck_channels import stuck_readings
 from sfmnet.readers.clock_times import all_clock_times
 from sfmnet.readers.static_rows import fitted_rows, static_settings
-from sfmnet.readers.table_file import Table, check_far_cells, check_finite, read_table, refuse_cells
+from sfmnet.readers.table_file import (
+    Table, check_far_cells, check_finite, read_table, refuse_cells, refuse_columns_named_twice,
+)
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.channel_dependence import dependent_channels, dependent_channels_message
 from sfmnet.linalg.frame import MirrorHint
@@ -410,14 +412,3 @@ def monotonic_channel_warnings(readings: np.ndarray, channels: list[str], span: 
         f"leave it out of the channels (data.time_column={name}, or data.channel_columns=[...])"
         for name, up, down in zip(channels, rising, falling) if up or down
     ]
-
-
-def refuse_columns_named_twice(roles: dict[str, list[str]]) -> None:
-    """A column named twice would be counted twice (a channel) or read as two things (a time that is also a channel)."""
-    seen: dict[str, str] = {}
-    for role, names in roles.items():
-        for name in names:
-            if name in seen:
-                both = f"as a {role} column twice" if seen[name] == role else f"as both a {seen[name]} and a {role} column"
-                raise SfmnetError(f"column '{name}' is named {both}: give each column one role, once")
-            seen[name] = role

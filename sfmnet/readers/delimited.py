@@ -94,6 +94,13 @@ class DelimitedFile:
             # A separator ending every line (a spreadsheet's export) makes no column: each row's empty last cell goes.
             header = header[:-1]
             records = ((line, cells[:-1] if len(cells) > len(header) and cells[-1] == "" else cells) for line, cells in records)
+        # Names may be numbers ("1", "2", ...), but most with a sign, a point or an exponent make a line of data.
+        numbers = [name for name in header if name and not name.isdigit() and self.number(name) is not None]
+        if len(numbers) > len(header) / 2:
+            raise SfmnetError(
+                f"the first line of {self.path} holds numbers ({', '.join(header[:3])}{', ...' if len(header) > 3 else ''}), "
+                "not column names: add a first line naming the columns"
+            )
         duplicates = sorted({name for name in header if header.count(name) > 1})
         if duplicates:
             raise SfmnetError(f"{self.path} has duplicate column names: {', '.join(duplicates)}; rename them")

@@ -14,7 +14,7 @@ from sfmnet.data.sensorimotor import (
     SensorimotorDataModule,
     label_indices,
 )
-from sfmnet.readers.table_file import Table, check_finite, read_table
+from sfmnet.readers.table_file import Table, check_finite, read_table, refuse_columns_named_twice
 from sfmnet.errors import SfmnetError
 
 
@@ -53,6 +53,7 @@ class SensorimotorCsvDataModule(SensorimotorDataModule):
             raise SfmnetError(f"data.test_fraction must be between 0 and 1, not {self.test_fraction}")
         if not self.sensor_columns or not self.command_columns:
             raise SfmnetError("name the columns: data.sensor_columns=[...] and data.command_columns=[...]")
+        refuse_columns_named_twice({"sensor": self.sensor_columns, "command": self.command_columns})
         table = read_table(self.path, self.columns)
         sensors = table.numeric(self.sensor_columns, "sensor")
         check_finite(sensors, self.sensor_columns, table, "sensor")
@@ -60,6 +61,11 @@ class SensorimotorCsvDataModule(SensorimotorDataModule):
         for name, values in zip(self.command_columns, raw):
             refuse_empty_commands(values, name, table)
         split = round(len(sensors) * (1 - self.test_fraction))
+        if split == len(sensors):
+            raise SfmnetError(
+                f"data.test_fraction={self.test_fraction} holds out none of the {len(sensors)} rows: give at least "
+                f"{1 / len(sensors):.2g}"
+            )
         commands, indices = [], []
         for name, values in zip(self.command_columns, raw):
             labels = sorted(set(values[:split].tolist()), key=sort_key)

@@ -17,10 +17,17 @@ from sfmnet.readers.delimited import decimal_comma_hint, open_delimited
 from sfmnet.readers.input_file import check_input_file
 
 
+def plain_name(name: str) -> str:
+    """A column name's letters and digits, in lower case."""
+    return "".join(character for character in name.casefold() if character.isalnum())
+
+
 def missing_column(name: str, role: str, path: Path, names: list[str]) -> SfmnetError:
     """The error for a ``role`` column ``name`` that the file lacks, with its closest match (any case first)."""
     same_but_case = [other for other in names if other.casefold() == name.casefold()]
-    close = same_but_case or difflib.get_close_matches(name, names, n=1)
+    # Then the same letters and digits: "Wheel L" for wheel_l.
+    same_but_spelling = [other for other in names if plain_name(other) == plain_name(name)]
+    close = same_but_case or same_but_spelling or difflib.get_close_matches(name, names, n=1)
     hint = f" (did you mean '{close[0]}'?)" if close else ""
     return SfmnetError(f"{role} column '{name}' is not in {path}{hint}; its columns are: {', '.join(names)}")
 
@@ -246,3 +253,15 @@ def refuse_cells(
         for r, c in zip(rows[:3], cols[:3])
     )
     raise SfmnetError(f"{table.path} has {int(bad.sum())} {what} (first: {where}): {remedy}")
+
+
+def refuse_columns_named_twice(roles: dict[str, list[str]]) -> None:
+    """A column named twice would be counted twice (a channel) or read as two things (a time that is also a channel; a
+    command that is also a sensor, which reads the command from itself)."""
+    seen: dict[str, str] = {}
+    for role, names in roles.items():
+        for name in names:
+            if name in seen:
+                both = f"as a {role} column twice" if seen[name] == role else f"as both a {seen[name]} and a {role} column"
+                raise SfmnetError(f"column '{name}' is named {both}: give each column one role, once")
+            seen[name] = role
