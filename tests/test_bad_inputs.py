@@ -598,6 +598,10 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: sensorimotor(t, log_text(300).replace(",stop\n", ",go\n").replace(",turn\n", ",go\n"), ["a", "b"], ["cmd"]),
         r"command column cmd takes one value \('go'\) on every training row: there is no mapping from sensors to commands",
     ),
+    "sensorimotor: a continuous command": (
+        lambda t: sensorimotor(t, log_text(300).replace("a,b,cmd", "cmd,b,label"), ["b"], ["cmd"]),
+        r"command column 'cmd' takes 296 different values in 300 rows: a command is one of a few labels .* bin it",
+    ),
     "sensorimotor: nothing held out": (
         lambda t: (lambda: (t / "log.csv").write_text(log_text(300)) and SensorimotorCsvDataModule(
             str(t / "log.csv"), ["a", "b"], ["cmd"], test_fraction=0.001).setup()),

@@ -208,6 +208,8 @@ def test_command_learner_reads_a_table_by_its_column_names():
     np.testing.assert_array_equal(learner.predict(reordered), learner.predict(sensors))
     with pytest.raises(sfmnet.SfmnetError, match="sensors has no column right: the learner was fitted on columns left, right, gyro"):
         learner.predict(Frame(sensors, ["left", "rigth", "gyro"]))
+    # At a rank of the sensors' count every sensor vector fits: the confidence is 1, not rounding to rank by.
+    assert (sfmnet.CommandLearner(rank=3).fit(sensors, commands).predict_confidence(sensors) == 1).all()
     with pytest.raises(sfmnet.SfmnetError, match="model.rank is 4 but there are 3 sensors: commands read from the sensors alone are undetermined"):
         sfmnet.CommandLearner(rank=4).fit(sensors, commands)
     with pytest.raises(sfmnet.SfmnetError, match=r"command column c0 takes one value \('go'\) on every training row"):

@@ -156,6 +156,9 @@ class SensorimotorLearner(nn.Module, ABC):
         basis = self.basis().detach()
         reconstruction = masked_projection(basis, standardised, observed) @ basis
         sensor_error = (reconstruction - standardised)[:, observed].pow(2).mean(dim=1).sqrt()
+        if self.rank >= self.sensor_count:
+            # Every sensor vector fits exactly: what is left is rounding, which no confidence should rank by.
+            sensor_error = torch.zeros_like(sensor_error)
         raw = (reconstruction + self.centre()) * self.column_scale + self.column_mean
         return CommandReading(
             commands=self.decode(raw),

@@ -60,6 +60,7 @@ class SensorimotorCsvDataModule(SensorimotorDataModule):
         raw = [table.categorical(name, "command") for name in self.command_columns]
         for name, values in zip(self.command_columns, raw):
             refuse_empty_commands(values, name, table)
+            refuse_continuous_commands(values, name)
         split = round(len(sensors) * (1 - self.test_fraction))
         if split == len(sensors):
             raise SfmnetError(
@@ -95,6 +96,21 @@ def refuse_empty_commands(values: np.ndarray, name: str, table: Table) -> None:
         raise SfmnetError(
             f"{table.path} has {len(rows)} empty cells in command column '{name}' (first: {table.row_place(int(rows[0]))}): "
             "fill in every command or drop those rows"
+        )
+
+
+# More distinct values than this (and than a tenth of the rows) make a command a signal, not a choice among labels.
+MAX_COMMAND_LABELS = 20
+
+
+def refuse_continuous_commands(values: np.ndarray, name: str) -> None:
+    """A command with a label per few rows (a velocity logged as a number) would be hundreds of one-hot columns, most
+    seen only once: refuse it, saying to bin it."""
+    labels = len(set(values.tolist()))
+    if labels > max(MAX_COMMAND_LABELS, len(values) / 10):
+        raise SfmnetError(
+            f"command column '{name}' takes {labels} different values in {len(values)} rows: a command is one of a few "
+            "labels (one-hot encoded), not a continuous signal; bin it into a few levels (e.g. -1, 0, +1)"
         )
 
 

@@ -202,7 +202,7 @@ def headline(name: str, metrics: dict[str, float], data: SensorimotorData) -> st
     auroc = metrics["confidence_auroc"]
     # Undefined where every held-out command was right (or every one wrong): nothing to rank.
     parts.append(
-        f"confidence AUROC {auroc:.2f}" if math.isfinite(auroc) else "confidence AUROC undefined (no wrong and right commands to rank)"
+        f"confidence AUROC {auroc:.2f}" if math.isfinite(auroc) else "confidence AUROC undefined (no wrong and right commands, or no spread of confidence, to rank)"
     )
     parts.append(f"subspace angle to PCA {metrics['subspace_angle_deg']:.2f} deg")
     return f"  {name}: " + "; ".join(parts)
