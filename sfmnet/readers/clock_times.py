@@ -77,10 +77,10 @@ class ClockTimes:
 
 def clock_time_column(cells: list[str], where: Callable[[int], str]) -> np.ndarray | None:
     """``f`` seconds from the first row of a column of dates or clock times (:class:`ClockTimes`; ``where`` names a row
-    for messages); None where no cell is one (a column of other text)."""
+    for messages); None where at most half the cells are (a column of numbers with a stray cell, or of other text)."""
     clock = ClockTimes()
     read = [clock(cell) for cell in cells]
-    if all(value is None for value in read):
+    if sum(value is not None for value in read) <= len(read) / 2:
         return None
     for row, (cell, value) in enumerate(zip(cells, read)):
         if value is None:
