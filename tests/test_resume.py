@@ -158,3 +158,24 @@ def test_streamed_fit_killed_after_leaving_out_a_glitch_resumes_bit_for_bit(tmp_
     whole = uninterrupted(tmp_path, run)
     assert_same_calibration(resumed, whole)
     assert any(w.startswith("1 of 480 rows lie far outside") for w in json.loads((resumed / "calibration.json").read_text())["warnings"])
+
+
+def test_a_ctrl_c_while_refitting_without_each_group_names_the_finished_fit_s_checkpoint(tmp_path: Path):
+    """A new user's Ctrl-C in a leave-one-pose-out fold was told "stopped in epoch 5, before its first checkpoint: run
+    it again from the start", with the finished fit's last.ckpt on disk and resuming from it working."""
+    from unittest import mock
+
+    from sfmnet.errors import FitInterrupted
+
+    generator = torch.Generator().manual_seed(0)
+    sensor = stream_sensor(6, 9.81, 0.002, 0.2, generator)
+    write_stream_csv(simulate_stream(sensor, 1.0, poses=8, rate=50.0, generator=generator), tmp_path / "s.csv", pose_column=True)
+    cfg = compose_config([
+        "experiment=calibrate_csv", f"data.path={tmp_path / 's.csv'}", "data.magnitude=9.81", "data.time_column=time",
+        "data.group_column=pose", "eval.leave_one_group_out=true",
+    ])
+    interrupted = mock.patch("sfmnet.tasks.calibration.leave_one_group_out", side_effect=FitInterrupted("a fold"))
+    with interrupted, pytest.raises(FitInterrupted, match=r"^stopped while refitting without each group .* resume with "
+                                    r"ckpt_path=.*run/checkpoints/shape_from_motion/last.ckpt"):
+        train(cfg, tmp_path / "run")
+    assert (tmp_path / "run" / "checkpoints" / "shape_from_motion" / "last.ckpt").is_file()

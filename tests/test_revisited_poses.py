@@ -3,7 +3,10 @@
 
 from __future__ import annotations
 
+import csv
+import json
 import re
+from pathlib import Path
 from unittest import mock
 
 import numpy as np
@@ -15,6 +18,8 @@ from sfmnet.calibration import calibration_matrix
 from sfmnet.eval.goodness_of_fit import REVISIT_Z
 from sfmnet.preprocessing.revisited_poses import hold_ids, revisited_poses
 from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor
+from sfmnet.training.run import train
+from tests.conftest import compose_config
 
 def pose_sequence(rows: int) -> np.ndarray:
     """12 poses of ``rows`` rows each, then poses 0 and 5 held again."""
@@ -54,7 +59,7 @@ def test_holds_that_differ_by_noise_alone_pass_and_a_drift_is_caught():
     figures = revisited_poses(held_readings(generator, labels, drift=2.0), labels, holds)
     assert figures.z > REVISIT_Z and figures.poses == 2 and figures.holds == 4 and figures.dof == 6
     # Pose 0 spans the whole recording, so it moved furthest.
-    assert figures.worst_pose == 0 and figures.worst_starts == [0, 600]
+    assert figures.worst_pose == "0" and figures.worst_starts == [0, 600]
 
 
 def test_noise_correlated_within_a_hold_is_not_taken_for_drift():
@@ -136,3 +141,29 @@ def test_without_a_time_column_the_revisit_is_named_by_the_files_rows():
     warning = next(w for w in calibration.warnings if "reads differently at each visit" in w)
     first, revisit = (int(row) for row in re.search(r"data rows (\d+), (\d+)\)", warning).groups())
     assert poses[first] == poses[revisit] == 0 and revisit >= 1200
+
+
+def test_a_pose_column_of_text_labels_is_read_as_poses(tmp_path: Path):
+    """A new user's pose labels (`1-0`) were refused as not numeric, though the README asks only for a column naming
+    each pose: text labels tie the same rows as numbers, and a message names the pose as the file writes it."""
+    readings, loads, time, poses = revisiting_stream(0.01)
+    columns = ["time", "s0", "s1", "s2", "fx", "fy", "fz", "pose"]
+    paths = {}
+    for name, label in (("numbers", lambda pose: f"{pose:g}"), ("text", lambda pose: f"P-{pose:g}")):
+        paths[name] = tmp_path / f"{name}.csv"
+        with paths[name].open("w", newline="") as stream:
+            writer = csv.writer(stream)
+            writer.writerow(columns)
+            for t, z, f, pose in zip(time, readings, loads, poses):
+                writer.writerow([f"{t:.3f}", *(f"{v:.9g}" for v in z), *("" if np.isnan(v) else f"{v:.6f}" for v in f), label(pose)])
+    calibrations = []
+    for name, path in paths.items():
+        cfg = compose_config([
+            "experiment=calibrate_csv", f"data.path={path}", "data.magnitude=9.81", "data.time_column=time",
+            "data.group_column=pose",
+        ])
+        train(cfg, tmp_path / name)
+        calibrations.append(json.loads((tmp_path / name / "calibration.json").read_text()))
+    np.testing.assert_array_equal(calibrations[0]["matrix"], calibrations[1]["matrix"])
+    assert any("pose 0 (holds starting at" in warning for warning in calibrations[0]["warnings"])
+    assert any("pose P-0 (holds starting at" in warning for warning in calibrations[1]["warnings"])

@@ -127,6 +127,8 @@ def test_six_axis_csv_gives_the_same_calibration(tmp_path: Path):
     for data in (datamodule.data, from_file.data):
         models.append(refined(ShapeFromMotion(), data.recordings["rotation"]))
     assert from_file.data.channels == [f"s{i}" for i in range(8)]
+    # Six load columns are forces then torques, reported apart (a new user's six-axis file was reported in N alone).
+    assert from_file.data.load_unit == "N, N m"
     assert torch.allclose(models[0].calibration_matrix(), models[1].calibration_matrix(), rtol=1e-5, atol=1e-9)
 
 

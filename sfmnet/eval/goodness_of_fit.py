@@ -760,7 +760,7 @@ def revisited_pose_warning(revisits: RevisitedPoses, channels: list[str]) -> str
         f"a pose held more than once reads differently at each visit: over {revisits.poses} revisited "
         f"pose{'s' if revisits.poses > 1 else ''} the holds' "
         f"means differ by {revisits.ratio:.2f}x what the noise within them explains (z = {revisits.z:.1f}); pose "
-        f"{revisits.worst_pose:g} (holds starting at {when}) moved {100 * revisits.worst_change:.2g} % of channel "
+        f"{revisits.worst_pose} (holds starting at {when}) moved {100 * revisits.worst_change:.2g} % of channel "
         f"{channels[revisits.worst_channel]}'s span. The sensor drifted over the recording (temperature, creep, not warmed "
         "up), the pose was not repeated exactly, or the noise is correlated over much of a hold (then "
         "static/noise_correlation is high too); each leaves the error bars too small, and a drift biases the "

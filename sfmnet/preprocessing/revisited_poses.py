@@ -40,7 +40,7 @@ class RevisitedPoses:
     dof: int
     poses: int
     holds: int
-    worst_pose: float
+    worst_pose: str
     worst_starts: list[int]
     worst_start_times: list[float] | None
     worst_channel: int
@@ -139,7 +139,7 @@ def revisited_poses(
         dof=dof,
         poses=len(revisited),
         holds=sum(visits[label] for label in revisited),
-        worst_pose=label,
+        worst_pose=f"{label:g}",
         worst_starts=starts,
         worst_start_times=None if time is None else [float(time[s]) for s in starts],
         worst_channel=channel,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -48,7 +49,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             sign of one unknown row's load component; needed with ``n - 1`` known loads.
         known_load_tolerance: relative disagreement allowed between a known load's magnitude
             and ``magnitude`` (the known loads are the same mass, so they must agree).
-        load_unit: for reports, e.g. ``N``.
+        load_unit: for reports, e.g. ``N``; None: ``N``, or ``N, N m`` for six axes (force, then torque).
         configuration_column: six axes: the column naming each row's mass configuration.
         configurations: six axes: ``{<id>: {mass: <kg>, centre_of_mass: [x, y, z] (m, sensor frame)}}``
             for every id in the configuration column; then ``magnitude``/``mass`` are not used.
@@ -78,7 +79,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         mass: float | None = None,
         mirror_hint: dict | None = None,
         known_load_tolerance: float = 0.02,
-        load_unit: str = "N",
+        load_unit: str | None = None,
         configuration_column: str | None = None,
         configurations: dict | None = None,
         group_column: str | None = None,
@@ -101,7 +102,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         self.mass = mass
         self.mirror_hint = mirror_hint
         self.known_load_tolerance = known_load_tolerance
-        self.load_unit = load_unit
+        # Six axes are forces and torques, reported apart (the headline, the known loads' figures).
+        self.load_unit = load_unit or ("N, N m" if len(self.axes) == 6 else "N")
         self.configuration_column = configuration_column
         self.configurations = configurations
         self.group_column = group_column
@@ -115,7 +117,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         refuse_columns_named_twice(roles)
         table = self.table if self.table is not None else read_table(self.path, self.columns)
         for role, names in roles.items():
-            if role != "time":
+            # A time column may hold clock times, a pose column labels: each is read on its own below.
+            if role not in ("time", "group"):
                 table.require(names, role)
         # Read (so checked) even where static intervals are off, though only they use it.
         time = table.times(self.time_column, self.static.time_scale if self.static else 1.0) if self.time_column else None
@@ -170,9 +173,9 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         dependent = dependent_channels(centred.T @ centred, len(unknown), len(self.axes))
         if dependent:
             raise SfmnetError(dependent_channels_message([channels[k] for k in dependent], f" of {self.path}"))
-        groups, labels = None, None
+        groups, labels, label_names = None, None, None
         if self.group_column:
-            labels = table.numeric([self.group_column], "group")[:, 0]
+            labels, label_names = pose_column(table, self.group_column)
         detection, keep = None, np.ones(len(readings), dtype=bool)
         if self.static is not None:
             detection = self.static.detect(readings, time, table.where)
@@ -185,7 +188,9 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 groups = torch.from_numpy(detection.interval_of_rows() if labels is None else pose_labels(labels, detection))
         if labels is not None and groups is None:
             groups = torch.from_numpy(pose_labels(labels))
-        revisits, unvisited = (None, []) if labels is None else pose_revisits(readings, labels, keep, detection, time)
+        revisits, unvisited = (
+            (None, []) if labels is None else pose_revisits(readings, labels, keep, detection, time, label_names)
+        )
         # Every row kept (no motion found, or no detection): views, not a copy of every column.
         rows = slice(None) if keep.all() else torch.from_numpy(keep)
         groups = None if groups is None else groups[rows]
@@ -307,8 +312,20 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         return MirrorHint(sample=int(unknown[:row].sum()), axis=axis, sign=sign, axis_name=self.load_columns[axis])
 
 
+def pose_column(table: Table, name: str) -> tuple[np.ndarray, list[str] | None]:
+    """A pose column's ``f`` labels as numbers (NaN where empty: a row of a pose of its own), and where the file labels
+    poses with text (``A``, ``1-0``) the text of each number (0, 1, ...), in order of first appearance; else None."""
+    if name in table.columns or name in table.corrupt:
+        return table.numeric([name], "group")[:, 0], None
+    cells = table.categorical(name, "group")
+    names: dict[str, int] = {}
+    labels = np.array([math.nan if cell == "" else names.setdefault(cell, len(names)) for cell in cells], dtype=np.float64)
+    return labels, list(names)
+
+
 def pose_revisits(
-    readings: np.ndarray, labels: np.ndarray, keep: np.ndarray, detection: StaticIntervals | None, time: np.ndarray | None
+    readings: np.ndarray, labels: np.ndarray, keep: np.ndarray, detection: StaticIntervals | None, time: np.ndarray | None,
+    label_names: list[str] | None = None,
 ) -> tuple[RevisitedPoses | None, list[str]]:
     """:func:`~sfmnet.preprocessing.revisited_poses.revisited_poses` of the rows fitted (``keep``): a hold is a run of
     rows with one pose label, within one static interval where a stream was split into them. And a note where a pose
@@ -318,14 +335,18 @@ def pose_revisits(
     holds = hold_ids(labels[keep], intervals)
     revisits = revisited_poses(readings[keep], labels[keep], holds, None if time is None else time[keep])
     if revisits is not None:
-        # The rows of the file, not of the rows kept, so that a message's row can be found in it.
-        revisits = replace(revisits, worst_starts=np.flatnonzero(keep)[revisits.worst_starts].tolist())
+        # The rows of the file, not of the rows kept, so that a message's row can be found in it; the label as written.
+        revisits = replace(
+            revisits, worst_starts=np.flatnonzero(keep)[revisits.worst_starts].tolist(),
+            worst_pose=revisits.worst_pose if label_names is None else label_names[int(revisits.worst_pose)],
+        )
     notes = []
     if not keep.all():
         visits, kept = holds_per_pose(labels, hold_ids(labels, None)), holds_per_pose(labels[keep], holds)
         lost = [label for label, count in visits.items() if count > 1 and kept.get(label, 0) < 2]
         if lost:
-            names = ", ".join(f"{label:g}" for label in lost[:5]) + (" ..." if len(lost) > 5 else "")
+            written = [f"{label:g}" if label_names is None else label_names[int(label)] for label in lost[:5]]
+            names = ", ".join(written) + (" ..." if len(lost) > 5 else "")
             notes.append(
                 f"pose{'s' if len(lost) > 1 else ''} {names} {'are' if len(lost) > 1 else 'is'} labelled in separate "
                 "runs of rows (held more than once), but fewer than two of those holds were kept as static intervals, "

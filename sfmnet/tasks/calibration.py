@@ -19,6 +19,7 @@ from pathlib import Path
 import torch
 
 from sfmnet.data.recording import CalibrationData, CalibrationRecording
+from sfmnet.errors import FitInterrupted
 from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.eval.diagnostics import calibration_diagnostics
 from sfmnet.eval.figures import method_title, motion_figure, spectrum_figure
@@ -154,7 +155,16 @@ class CalibrationTask(Task):
         model_cfgs = {main.name: self.cfg.model, **self.cfg.get("baselines", {})}
         progress = bool(self.cfg.trainer.get("enable_progress_bar", True))
         # The groups held out are those of the main method's recording.
-        folds = leave_one_group_out(self.cfg, data, model_cfgs, main.model.recording, progress)
+        try:
+            folds = leave_one_group_out(self.cfg, data, model_cfgs, main.model.recording, progress)
+        except FitInterrupted:
+            # A fold's fit keeps no checkpoint; the methods' own fits, finished, do.
+            checkpoints = sorted(run_dir.glob("checkpoints/*/last.ckpt"))
+            resume = checkpoints[0] if len(checkpoints) == 1 else run_dir / "checkpoints" / "<method>" / "last.ckpt"
+            raise FitInterrupted(
+                "stopped while refitting without each group (eval.leave_one_group_out), after every method's own fit: "
+                f"resume with ckpt_path={resume} (and a new hydra.run.dir); the groups are refitted from the start"
+            ) from None
         for name, summary in summarise_folds(folds).items():
             results[name].metrics.update({f"lopo/{key}": value for key, value in summary.items()})
         for fold in folds:

@@ -51,6 +51,8 @@ def quiet_lightning() -> None:
     warnings.filterwarnings("ignore", message=".*The number of training batches.*")
     warnings.filterwarnings("ignore", message=".*LeafSpec.*")
     warnings.filterwarnings("ignore", message=".*this fit will run with no optimizer.*")
+    # A resume writes to a new run directory, as the resume hint says: its best-score bookkeeping is not needed.
+    warnings.filterwarnings("ignore", message=".*The dirpath has changed from.*")
 
 
 def refuse_existing_results(run_dir: Path) -> None:
