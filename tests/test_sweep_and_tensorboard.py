@@ -18,7 +18,7 @@ from tensorboard.plugins.hparams import plugin_data_pb2
 
 from sfmnet.training.headline_metrics import headline_keys
 from sfmnet.training.run import train
-from tests.conftest import REPO, compose_config
+from tests.conftest import REPO, compose_config, write_session
 
 SAMPLES = ("48", "96")
 SEEDS = ("0", "1")
@@ -118,3 +118,16 @@ def test_a_converged_fit_prints_its_repeated_epochs_once(tmp_path: Path, caplog:
     first, last = lines
     assert first.startswith("shape_from_motion epoch 1/5: loss_epoch ")
     assert last == first.replace("epoch 1/5", "epoch 5/5") + " (unchanged since epoch 1)"
+
+
+def test_a_streamed_pass_that_logs_nothing_prints_no_line(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    """Two testers' streamed runs began with `streamed_shape_from_motion epoch 1/50: ` and nothing after it: the pass
+    summing the moments logs no figures."""
+    session = tmp_path / "session.csv"
+    write_session(session, known_loads=3)
+    cfg = compose_config(["experiment=calibrate_stream", f"data.path={session}", "data.magnitude=9.81"])
+    cfg.trainer.enable_progress_bar = True
+    with caplog.at_level(logging.INFO, logger="sfmnet.training.progress"):
+        train(cfg, tmp_path / "run")
+    lines = [record.getMessage() for record in caplog.records if record.name == "sfmnet.training.progress"]
+    assert lines and all(not line.endswith(": ") and "train/" in line for line in lines), lines

@@ -84,6 +84,8 @@ class EpochLines(LightningProgressBar):
         total = f"/{trainer.max_epochs}" if trainer.max_epochs and trainer.max_epochs > 0 else ""
         metrics = ", ".join(f"{key} {value:.4g}" if isinstance(value, float) else f"{key} {value}"
                             for key, value in epoch_metrics(shown_metrics(self.get_metrics(trainer, pl_module))).items())
+        if not metrics and not last:
+            return  # an epoch that logs nothing (a streamed pass summing moments) says nothing
         unchanged = self.shown is not None and self.shown[0] == metrics
         if not unchanged:
             self.shown = (metrics, epoch)
