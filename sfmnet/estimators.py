@@ -18,6 +18,8 @@ from sfmnet.api import as_matrix, compose_run_config
 from sfmnet.errors import SfmnetError
 
 LEARNERS = {"eigenspace": "eigenspace", "autoencoder": "linear_autoencoder"}
+# Each parameter's config key (the longest first, so that one key is not replaced inside another).
+PARAMETER_KEYS = {"rank_rule": "model.rank_rule", "rank": "model.rank", "seed": "model.seed", "max_epochs": "trainer.max_epochs"}
 
 
 class CommandLearner:
@@ -112,18 +114,25 @@ class CommandLearner:
             sensors=names or [f"s{i}" for i in range(readings.shape[1])],
             commands=[Command(f"c{i}", alphabet) for i, alphabet in enumerate(alphabets)],
         )
-        overrides = {"model.rank": self.rank, "model.rank_rule": self.rank_rule, "model.seed": self.seed}
-        if self.max_epochs is not None:
-            overrides["trainer.max_epochs"] = self.max_epochs
-        cfg = compose_run_config(["experiment=sensorimotor_csv", f"model={LEARNERS[self.learner]}"], overrides)
-        # The data come as arrays here, not from cfg.data: check the rest.
-        check_config(OmegaConf.masked_copy(cfg, [key for key in cfg if key != "data"]))
-        torch.manual_seed(self.seed)
-        with unwrapped_user_errors():
-            model = instantiate(cfg.model)
-        quiet_lightning()
-        fit(model, cfg, FixedSensorimotorDataModule(data), logger=False, enable_checkpointing=False, callbacks=[],
-            enable_progress_bar=False)
+        overrides = {PARAMETER_KEYS[name]: getattr(self, name) for name in PARAMETER_KEYS}
+        if self.max_epochs is None:
+            del overrides["trainer.max_epochs"]
+        try:
+            cfg = compose_run_config(["experiment=sensorimotor_csv", f"model={LEARNERS[self.learner]}"], overrides)
+            # The data come as arrays here, not from cfg.data: check the rest.
+            check_config(OmegaConf.masked_copy(cfg, [key for key in cfg if key != "data"]))
+            torch.manual_seed(self.seed)
+            with unwrapped_user_errors():
+                model = instantiate(cfg.model)
+            quiet_lightning()
+            fit(model, cfg, FixedSensorimotorDataModule(data), logger=False, enable_checkpointing=False, callbacks=[],
+                enable_progress_bar=False)
+        except SfmnetError as error:
+            # The command line's keys, in the words of this class's parameters.
+            message = str(error)
+            for name, key in PARAMETER_KEYS.items():
+                message = message.replace(key, name)
+            raise SfmnetError(message) from None
         self.learner_ = model
         self.labels_ = alphabets
         self.rank_ = int(model.rank)
