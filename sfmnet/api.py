@@ -11,6 +11,7 @@ import contextlib
 import datetime
 import io
 import tempfile
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -132,7 +133,19 @@ def calibrate(
 
     table = Table(path=Path(data["path"]), columns=columns, text={})
     cfg = calibration_config(data, config_overrides, verbose)
+    if time is not None and is_dates(time) and cfg.data.get("time_unit", "s") != "s":
+        raise SfmnetError("time is given as dates or durations, which are read as seconds: leave data.time_unit out")
     return run_calibration(cfg, table, run_dir, verbose)
+
+
+def is_dates(time: Any) -> bool:
+    """Whether ``time`` holds dates or durations (numpy ``datetime64``/``timedelta64``, Python ``datetime``s)."""
+    if hasattr(time, "detach"):
+        return False
+    array = np.asarray(time)
+    return array.dtype.kind in "mM" or (
+        array.dtype == object and array.size > 0 and isinstance(array.flat[0], (datetime.datetime, datetime.timedelta))
+    )
 
 
 def seconds_from_first(time: Any) -> np.ndarray:
@@ -140,9 +153,18 @@ def seconds_from_first(time: Any) -> np.ndarray:
     first's (their integer counts would otherwise be read as seconds: nanoseconds from pandas)."""
     if hasattr(time, "detach"):
         return as_float_array(time, "time", "one time (s) per reading")
-    array = np.asarray(time)
-    if array.dtype == object and array.size and all(isinstance(value, (datetime.datetime, datetime.timedelta)) for value in array.flat):
-        array = array.astype("datetime64[ns]" if isinstance(array.flat[0], datetime.datetime) else "timedelta64[ns]")
+    try:
+        array = np.asarray(time)
+        if is_dates(array) and array.dtype == object:
+            # A missing time (NaN or NaT beside dates) or durations among dates fail here; dates with a zone are
+            # taken in UTC, which numpy notes each time.
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message="no explicit representation of timezones")
+                array = array.astype("datetime64[ns]" if isinstance(array.flat[0], datetime.datetime) else "timedelta64[ns]")
+    except (TypeError, ValueError) as error:
+        raise SfmnetError(
+            f"time cannot be read as dates ({error}): give every reading a time, all as seconds, dates or durations"
+        ) from None
     if array.dtype.kind in "mM" and array.ndim == 1 and array.size:
         if np.isnat(array).any():
             raise SfmnetError("time has missing values (NaT): give every reading a time")

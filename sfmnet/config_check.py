@@ -155,11 +155,9 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
         config = compose(config_name="train", overrides=selections)
         keys = flat_keys(OmegaConf.to_container(config, resolve=False, throw_on_missing=False))
         for key in settings:
-            if key not in keys:
-                raise SfmnetError(
-                    f"unknown config key '{key}'{suggestion(key, keys)}: see python -m sfmnet train --help "
-                    "(add a new key with +key=value)"
-                )
+            # A sweep over groups checks its plain settings against every job's config, below.
+            if key not in keys and not (swept_groups and key in plain_settings):
+                raise unknown_key(key, keys)
         for key in emptied:
             kept = OmegaConf.select(config, key)
             # Hydra merges a dict override into the dict it names, so an empty one removes nothing.
@@ -171,11 +169,11 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
         missing = sorted(key for key in OmegaConf.missing_keys(config) if key not in given)
         if missing:
             raise SfmnetError(f"{', '.join(missing)} must be given, e.g. {missing[0]}=<value>")
+        forced = check_swept_combinations(selections, swept_groups, plain_settings) if swept_groups else set()
         try:
             job = compose(config_name="train", overrides=first_job, return_hydra_config=True)
         except (HydraException, OmegaConfBaseException) as error:
             raise SfmnetError(f"Hydra cannot apply these overrides: {' '.join(str(error).split())}") from None
-        forced = keys_only_swept_groups_define(selections, swept_groups, plain_settings) if swept_groups else set()
     task = OmegaConf.masked_copy(job, [key for key in job if key != "hydra"])
     try:
         check_config(task)
@@ -187,24 +185,34 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
     return [f"++{item}" if item in forced else item for item in overrides]
 
 
-def keys_only_swept_groups_define(selections: list[str], swept: dict[str, list[str]], settings: dict[str, str]) -> set[str]:
-    """The overrides among ``settings`` (key -> ``key=value``, not swept) whose key the default groups' config lacks
-    but every combination of the ``swept`` groups' configs has (inside Hydra's ``compose`` context); one line naming
-    the first combination that lacks one."""
+def unknown_key(key: str, keys: list[str] | set[str]) -> SfmnetError:
+    return SfmnetError(
+        f"unknown config key '{key}'{suggestion(key, sorted(keys))}: see python -m sfmnet train --help "
+        "(add a new key with +key=value)"
+    )
+
+
+def check_swept_combinations(selections: list[str], swept: dict[str, list[str]], settings: dict[str, str]) -> set[str]:
+    """Check the plain ``settings`` (key -> ``key=value``, not swept) against the config of every combination of the
+    ``swept`` groups (inside Hydra's ``compose`` context): one line naming a key no job has, or the first jobs that lack
+    one. Returns the settings whose key the default groups' config lacks, which Hydra's own compose of the sweep would
+    refuse."""
     from hydra import compose
 
     def keys_of(choices: list[str]) -> set[str]:
         return set(flat_keys(OmegaConf.to_container(compose(config_name="train", overrides=choices), resolve=False)))
 
     fixed = [choice for choice in selections if choice.partition("=")[0] not in swept]
-    outside = [key for key in settings if key not in keys_of(fixed)]
-    for combination in itertools.product(*swept.values()) if outside else ():
-        choices = [f"{group}={value}" for group, value in zip(swept, combination)]
-        keys = keys_of([*fixed, *choices])
-        for key in outside:
-            if key not in keys:
-                raise SfmnetError(
-                    f"config key '{key}' is not in the jobs with {' '.join(choices)}: sweep over configs that all have "
-                    "it, or run those jobs apart"
-                )
-    return {settings[key] for key in outside}
+    jobs = [[f"{group}={value}" for group, value in zip(swept, combination)] for combination in itertools.product(*swept.values())]
+    job_keys = [keys_of([*fixed, *choices]) for choices in jobs]
+    for key in settings:
+        lacking = [choices for choices, keys in zip(jobs, job_keys) if key not in keys]
+        if len(lacking) == len(jobs):
+            raise unknown_key(key, job_keys[0])
+        if lacking:
+            raise SfmnetError(
+                f"config key '{key}' is not in the jobs with {' '.join(lacking[0])}: sweep over configs that all have it, "
+                "or run those jobs apart"
+            )
+    default_keys = keys_of(fixed)
+    return {item for key, item in settings.items() if key not in default_keys}

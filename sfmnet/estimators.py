@@ -8,7 +8,7 @@
 from __future__ import annotations
 
 import math
-
+import warnings
 from typing import Any
 
 import numpy as np
@@ -39,8 +39,8 @@ class CommandLearner:
         mean_, scale_: ``m``, the standardisation of ``[sensors; one-hot commands]``.
         singular_values_: of the standardised training vectors.
         n_features_in_: ``p_s``, the sensors.
-        feature_names_in_: the sensors' column names, where ``sensors`` was a table with string column names (a pandas
-            DataFrame); a table given to ``predict`` is then read by those names, in any order.
+        feature_names_in_: the sensors' column names, where ``sensors`` was a table (a pandas DataFrame); a table given
+            to ``predict`` is then read by those names, in any order, and an array in their order, with a warning.
         learner_: the fitted :class:`~sfmnet.models.sensorimotor_learner.SensorimotorLearner`.
 
     The confidence is ``1 / (1 + e)``, ``e`` the sensors' misfit to the subspace: with a rank at least
@@ -111,7 +111,7 @@ class CommandLearner:
         data = SensorimotorData(
             train=[Episode(readings, codes)],
             test=[],
-            sensors=names or [f"s{i}" for i in range(readings.shape[1])],
+            sensors=[str(name) for name in names] if names else [f"s{i}" for i in range(readings.shape[1])],
             commands=[Command(f"c{i}", alphabet) for i, alphabet in enumerate(alphabets)],
         )
         overrides = {PARAMETER_KEYS[name]: getattr(self, name) for name in PARAMETER_KEYS}
@@ -152,12 +152,18 @@ class CommandLearner:
         names = column_names(sensors)
         readings = finite_matrix(sensors, "sensors")
         fitted = list(getattr(self, "feature_names_in_", []))
+        if names is None and fitted:
+            warnings.warn(
+                f"sensors has no column names, but the learner was fitted on named columns ({', '.join(map(str, fitted))}): "
+                "they are read in that order", UserWarning, stacklevel=3,
+            )
         if names is not None and fitted and names != fitted:
             # By name, as apply matches a calibration's channels: a table's columns in another order are no other sensors.
             missing = [name for name in fitted if name not in names]
             if missing:
                 raise SfmnetError(
-                    f"sensors has no column {', '.join(missing)}: the learner was fitted on columns {', '.join(fitted)}"
+                    f"sensors has no column {', '.join(map(str, missing))}: the learner was fitted on columns "
+                    f"{', '.join(map(str, fitted))}"
                 )
             readings = readings[:, [names.index(name) for name in fitted]]
         if readings.shape[1] != self.n_features_in_:
@@ -181,12 +187,17 @@ class CommandLearner:
         return self._read(sensors).reconstruction.numpy()
 
 
-def column_names(values: Any) -> list[str] | None:
-    """A table's column names (a pandas DataFrame's), where every one is a string; else None."""
+def column_names(values: Any) -> list[Any] | None:
+    """A table's column names (a pandas DataFrame's, strings or numbers), None for an array; a name given twice is
+    refused (the command line refuses a column named twice)."""
     columns = getattr(values, "columns", None)
-    if columns is None or not all(isinstance(name, str) for name in columns):
+    if columns is None:
         return None
-    return list(columns)
+    names = [name.item() if hasattr(name, "item") else name for name in columns]
+    twice = sorted({str(name) for name in names if names.count(name) > 1})
+    if twice:
+        raise SfmnetError(f"sensors has columns named twice ({', '.join(twice)}): give each sensor column its own name")
+    return names
 
 
 def finite_matrix(values: Any, name: str) -> np.ndarray:

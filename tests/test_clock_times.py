@@ -45,6 +45,9 @@ def test_other_cells_are_not_times(cell: str):
 def test_clock_times_that_pass_midnight_keep_counting():
     seconds = clock_time_column(["23:59:59.500", "23:59:59.900", "00:00:00.300", "00:00:01.000"], str)
     np.testing.assert_allclose(seconds, [0.0, 0.4, 0.8, 1.5])
+    # Two rows swapped across midnight (a hostile tester's): a step back of 10 ms, not a day.
+    seconds = clock_time_column(["23:59:59.980", "00:00:00.000", "23:59:59.990", "00:00:00.010"], str)
+    np.testing.assert_allclose(seconds, [0.0, 0.02, 0.01, 0.03], atol=1e-9)
 
 
 def test_a_time_column_mixing_dates_and_clock_times_is_refused():
@@ -99,3 +102,23 @@ def test_the_python_api_reads_numpy_and_python_dates_as_seconds_from_the_first()
     for time in (stamps, stamps - stamps[0], list(stamps.astype("datetime64[us]").tolist())):
         calibration = sfmnet.calibrate(readings, MASS * 9.80665, loads=loads, time=time)
         np.testing.assert_allclose(calibration.matrix, reference.matrix, rtol=0, atol=1e-9 * np.abs(reference.matrix).max())
+
+
+@pytest.mark.parametrize("experiment", ["calibrate_csv", "calibrate_stream"])
+def test_a_time_unit_beside_dates_is_refused(recordings: dict[str, Path], tmp_path: Path, experiment: str):
+    """Dates are read as seconds: a hostile tester's data.time_unit=ms scaled them again in a stream (and was ignored
+    in memory)."""
+    with pytest.raises(SfmnetError, match="time column 'time' holds dates or clock times, which are read as seconds"):
+        calibrate(recordings["iso"], tmp_path / "run", "data.time_unit=ms", experiment=experiment)
+
+
+def test_api_times_that_cannot_be_dates_are_one_line():
+    recording, _ = stream(poses=10)
+    readings, loads = recording.readings.numpy(), recording.known_loads.numpy()
+    stamps = list(np.datetime64("2026-12-07T13:00", "ns") + (recording.time.numpy() * 1e9).astype("timedelta64[ns]"))
+    with pytest.raises(SfmnetError, match="time is given as dates or durations, which are read as seconds: leave data.time_unit out"):
+        sfmnet.calibrate(readings, MASS * 9.80665, loads=loads, time=np.array(stamps), **{"data.time_unit": "ms"})
+    mixed = [stamp.astype("datetime64[us]").astype(datetime.datetime) for stamp in stamps]
+    mixed[7] = datetime.timedelta(seconds=1)
+    with pytest.raises(SfmnetError, match=r"time cannot be read as dates .*: give every reading a time"):
+        sfmnet.calibrate(readings, MASS * 9.80665, loads=loads, time=mixed)

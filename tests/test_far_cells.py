@@ -34,3 +34,23 @@ def test_a_clean_column_has_no_far_cells():
     above, below = far_cell_limits_chunked(values, chunk_rows=1_000)
     assert np.isinf(above[1:]).all() and np.isinf(below).all()
     assert not far_cells(values).any()
+
+
+def test_far_cells_at_both_ends_of_a_column_are_each_found():
+    """A hostile tester's +1e9 and -1e9 in one column: each end's gap measured against a rest that held the other end's
+    cell was no gap, and the fit blamed the orientations."""
+    values = np.random.default_rng(3).normal(size=(5_600, 2))
+    values[0, 0], values[-1, 0] = 1e9, -1e9
+    bad = far_cells(values)
+    assert bad[[0, -1], 0].all() and bad.sum() == 2
+    above, below = far_cell_limits_chunked(values, chunk_rows=1_000)
+    np.testing.assert_array_equal((values >= above) | (values <= below), bad)
+
+
+def test_a_channel_that_barely_moves_is_no_corrupt_cell():
+    """A hostile tester's quantised channel: 100 on every row but 20 that read 101. The rest's range is 0, which gives
+    no scale to call a step of one count far by."""
+    values = np.full((5_600, 1), 100.0)
+    values[3_000:3_020] = 101.0
+    assert not far_cells(values).any()
+

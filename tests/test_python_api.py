@@ -206,9 +206,16 @@ def test_command_learner_reads_a_table_by_its_column_names():
     learner = sfmnet.CommandLearner(rank=2).fit(Frame(sensors, ["left", "right", "gyro"]), commands)
     assert list(learner.feature_names_in_) == ["left", "right", "gyro"]
     reordered = Frame(sensors[:, [2, 0, 1]], ["gyro", "left", "right"])
-    np.testing.assert_array_equal(learner.predict(reordered), learner.predict(sensors))
+    np.testing.assert_array_equal(learner.predict(reordered), learner.predict(Frame(sensors, ["left", "right", "gyro"])))
     with pytest.raises(sfmnet.SfmnetError, match="sensors has no column right: the learner was fitted on columns left, right, gyro"):
         learner.predict(Frame(sensors, ["left", "rigth", "gyro"]))
+    with pytest.warns(UserWarning, match="sensors has no column names, but the learner was fitted on named columns"):
+        learner.predict(sensors)
+    # Numbers are names too (a DataFrame made from an array), and a name given twice is refused.
+    numbered = sfmnet.CommandLearner(rank=2).fit(Frame(sensors, [0, 1, 2]), commands)
+    np.testing.assert_array_equal(numbered.predict(Frame(sensors[:, [2, 0, 1]], [2, 0, 1])), numbered.predict(Frame(sensors, [0, 1, 2])))
+    with pytest.raises(sfmnet.SfmnetError, match=r"sensors has columns named twice \(a\)"):
+        sfmnet.CommandLearner(rank=2).fit(Frame(sensors, ["a", "a", "c"]), commands)
     # At a rank of the sensors' count every sensor vector fits: the confidence is 1, not rounding to rank by.
     assert (sfmnet.CommandLearner(rank=3).fit(sensors, commands).predict_confidence(sensors) == 1).all()
     with pytest.raises(sfmnet.SfmnetError, match="^rank is 4 but there are 3 sensors: commands read from the sensors alone are undetermined"):

@@ -92,10 +92,6 @@ class SensorimotorLearner(nn.Module, ABC):
             )
             # Above the sensors' count the sensors alone leave a subspace's coordinates undetermined.
             self.rank = min(chosen, self.sensor_count)
-        if not 1 <= self.rank < vectors.shape[1]:
-            raise SfmnetError(
-                f"model.rank is {self.rank} but the vectors have {vectors.shape[1]} columns: choose 1 to {vectors.shape[1] - 1}"
-            )
         if self.rank > self.sensor_count:
             raise SfmnetError(
                 f"model.rank is {self.rank} but there are {self.sensor_count} sensors: commands read from the sensors "

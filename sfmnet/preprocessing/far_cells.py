@@ -43,17 +43,22 @@ def far_cell_limits(lowest: np.ndarray, highest: np.ndarray, rows: int) -> tuple
 
     Returns:
         ``above``, ``below`` (``p`` each): the top (bottom) ``k <= t`` cells are far where the gap between them and the
-        rest is over :data:`FAR_CELL_SPREADS` times the rest's range; the largest such ``k`` is taken.
+        rest (less the other end's ``t`` cells) is over :data:`FAR_CELL_SPREADS` times the rest's range, and that range
+        is not 0; the largest such ``k`` is taken.
     """
     tail = len(lowest) - 1
     assert rows > 2 * tail + 1, "the two ends must not overlap"
     k = np.arange(1, tail + 1)
     columns = np.arange(lowest.shape[1])
-    # Row k - 1 of each: the top (bottom) k cells against the rest, the gap between over the rest's range.
+    # Row k - 1 of each: the top (bottom) k cells against the rest, the gap between over the rest's range. The rest
+    # leaves out the other end's t cells, which may be far cells too (an overflow at one end, its negative at the
+    # other); a rest of one value (a channel that barely moves, quantised) gives no scale to judge a gap by.
     high_k, high_rest = highest[tail + 1 - k], highest[tail - k]
-    high = high_k - high_rest > FAR_CELL_SPREADS * (high_rest - lowest[0])
+    high_range = high_rest - lowest[tail]
+    high = (high_k - high_rest > FAR_CELL_SPREADS * high_range) & (high_range > 0)
     low_k, low_rest = lowest[k - 1], lowest[k]
-    low = low_rest - low_k > FAR_CELL_SPREADS * (highest[tail] - low_rest)
+    low_range = highest[0] - low_rest
+    low = (low_rest - low_k > FAR_CELL_SPREADS * low_range) & (low_range > 0)
     # The most cells such a gap sets apart, at each end of each column (0: none).
     top = np.where(high.any(axis=0), tail - np.argmax(high[::-1], axis=0), 0)
     bottom = np.where(low.any(axis=0), tail - np.argmax(low[::-1], axis=0), 0)

@@ -139,7 +139,7 @@ def revisited_poses(
         dof=dof,
         poses=len(revisited),
         holds=sum(visits[label] for label in revisited),
-        worst_pose=f"{label:g}",
+        worst_pose=f"{label:.15g}",
         worst_starts=starts,
         worst_start_times=None if time is None else [float(time[s]) for s in starts],
         worst_channel=channel,

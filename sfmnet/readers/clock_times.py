@@ -52,8 +52,8 @@ def all_clock_times(cells: Iterable[str]) -> bool:
 
 class ClockTimes:
     """A column's dates or clock times read one by one in row order, as seconds from the first one read
-    (:func:`clock_seconds`). Clock times without a date that step back by over half a day have passed midnight: a day
-    is added from there on."""
+    (:func:`clock_seconds`). Clock times without a date are put on the day nearest the row before's: one that steps
+    back by over half a day has passed midnight, and a day is added from there on."""
 
     def __init__(self) -> None:
         self.first: tuple[int, float] | None = None
@@ -68,9 +68,12 @@ class ClockTimes:
         day, seconds, dated = read
         self.first = self.first or (day, seconds)
         elapsed = (day - self.first[0] + self.days) * DAY + (seconds - self.first[1])
-        if not dated and self.previous is not None and elapsed - self.previous < -DAY / 2:
-            self.days += 1
-            elapsed += DAY
+        if not dated and self.previous is not None:
+            # The day that puts it nearest the row before: a step back of half a day has passed midnight, and a step
+            # forward of half a day after that is a row logged just before midnight, out of order.
+            shift = round((self.previous - elapsed) / DAY)
+            self.days += shift
+            elapsed += shift * DAY
         self.previous = elapsed
         return elapsed, dated
 

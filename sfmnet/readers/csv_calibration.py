@@ -314,9 +314,10 @@ class CsvCalibrationDataModule(CalibrationDataModule):
 
 def pose_column(table: Table, name: str) -> tuple[np.ndarray, list[str] | None]:
     """A pose column's ``f`` labels as numbers (NaN where empty: a row of a pose of its own), and where the file labels
-    poses with text (``A``, ``1-0``) the text of each number (0, 1, ...), in order of first appearance; else None."""
-    if name in table.columns or name in table.corrupt:
-        return table.numeric([name], "group")[:, 0], None
+    poses with text (``A``, ``1-0``; among numbers too) the text of each number (0, 1, ...), in order of first
+    appearance; else None."""
+    if name in table.columns:
+        return table.columns[name], None
     cells = table.categorical(name, "group")
     names: dict[str, int] = {}
     labels = np.array([math.nan if cell == "" else names.setdefault(cell, len(names)) for cell in cells], dtype=np.float64)
@@ -345,7 +346,7 @@ def pose_revisits(
         visits, kept = holds_per_pose(labels, hold_ids(labels, None)), holds_per_pose(labels[keep], holds)
         lost = [label for label, count in visits.items() if count > 1 and kept.get(label, 0) < 2]
         if lost:
-            written = [f"{label:g}" if label_names is None else label_names[int(label)] for label in lost[:5]]
+            written = [f"{label:.15g}" if label_names is None else label_names[int(label)] for label in lost[:5]]
             names = ", ".join(written) + (" ..." if len(lost) > 5 else "")
             notes.append(
                 f"pose{'s' if len(lost) > 1 else ''} {names} {'are' if len(lost) > 1 else 'is'} labelled in separate "

@@ -8,7 +8,10 @@ import torch
 
 from sfmnet.readers.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields, monotonic_channel_warnings
 from sfmnet.data.recording import CalibrationData
+from sfmnet.readers.clock_times import clock_seconds
+from sfmnet.readers.delimited import open_delimited
 from sfmnet.readers.row_file import RowFileDataModule, column_index
+from sfmnet.readers.table_file import DATES_WITH_A_UNIT
 from sfmnet.data.rows import SHIFT_ROWS, MappedColumns, StreamedRecording, mapped_rows
 from sfmnet.readers.static_rows import fitted_rows, static_settings
 from sfmnet.errors import SfmnetError
@@ -105,6 +108,8 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             load_columns=self.load_columns, load_index=load_index, magnitude=magnitude, axes=self.axes,
             known_load_tolerance=self.known_load_tolerance,
         )
+        if self.time_column and self.static is not None and self.static.time_scale != 1.0:
+            self.refuse_dates_with_a_unit()
         recording.refuse_bad_rows()
         recording.refuse_far_cells()
         detection = self.find_static_rows(recording, names) if self.static is not None else None
@@ -147,6 +152,18 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         if not detection.independent:
             recording.keep, recording.intervals = keep, detection.intervals
         return detection
+
+    def refuse_dates_with_a_unit(self) -> None:
+        """A CSV's time column of dates or clock times is converted to seconds: a ``data.time_unit`` would scale them
+        again (judged by the first row's cell)."""
+        if self.path.suffix == ".npy":
+            return
+        source = open_delimited(self.path)
+        header, records = source.header_and_rows()
+        first = next(records, None)
+        column = header.index(self.time_column) if self.time_column in header else None
+        if first is not None and column is not None and column < len(first[1]) and clock_seconds(first[1][column]):
+            raise SfmnetError(DATES_WITH_A_UNIT.format(name=self.time_column))
 
     def read_mirror_hint(self, recording: StreamedRecording) -> None:
         """The hint's row, read from the file alone (one row through the memory map)."""

@@ -32,6 +32,12 @@ def missing_column(name: str, role: str, path: Path, names: list[str]) -> Sfmnet
     return SfmnetError(f"{role} column '{name}' is not in {path}{hint}; its columns are: {', '.join(names)}")
 
 
+DATES_WITH_A_UNIT = (
+    "time column '{name}' holds dates or clock times, which are read as seconds: data.time_unit is for a time column "
+    "of numbers; leave it out"
+)
+
+
 @dataclass(frozen=True)
 class Table:
     """Columns by name, each a float64 array of the same length; NaN where a cell was empty.
@@ -83,6 +89,8 @@ class Table:
         if name in self.cells:
             seconds = clock_time_column(self.cells[name], self.where)
             if seconds is not None:
+                if scale != 1.0:
+                    raise SfmnetError(DATES_WITH_A_UNIT.format(name=name))
                 return seconds
         return self.numeric([name], "time")[:, 0] * scale
 
