@@ -306,3 +306,17 @@ def test_streamed_keeps_the_same_rows_as_in_memory(tmp_path: Path):
     assert (tmp_path / "streamed" / "static_intervals.csv").read_text() == (tmp_path / "memory" / "static_intervals.csv").read_text()
     matrices = [np.array(json.loads((tmp_path / name / "calibration.json").read_text())["matrix"]) for name in ("memory", "streamed")]
     assert np.abs(matrices[0] - matrices[1]).max() <= 1e-6 * np.abs(matrices[0]).max()
+
+
+def test_one_corrupt_cell_under_the_far_cell_limit_leaves_the_other_intervals():
+    """A hostile tester's cell 5000 times its channel's range (under the far-cell refusal's 1e4): the levels' full
+    range made every window of that channel "flat", its noise floor the running sums' rounding, and no interval was
+    found; the known loads were then called "recorded in motion"."""
+    recording, _ = stream()
+    readings, time = recording.readings.numpy().copy(), recording.time.numpy()
+    clean = find_static_intervals(readings, time)
+    readings[700, 2] = readings[:, 2].max() + 5000 * np.ptp(readings[:, 2])
+    corrupt = find_static_intervals(readings, time)
+    assert len(corrupt.intervals) == len(clean.intervals) >= 12
+    assert abs(int(corrupt.mask.sum()) - int(clean.mask.sum())) <= 2 * clean.window_rows
+

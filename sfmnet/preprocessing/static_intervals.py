@@ -465,8 +465,12 @@ def noise_floor(readings: Rows, half: int, quantile: float, step: np.ndarray, ch
     dof = 2 * half
     z = NormalDist().inv_cdf(quantile)
     chi2_quantile = dof * max(1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof)), 0.05) ** 3  # Wilson-Hilferty
-    # A flat window's variance is 0 to the rounding of the running sums (1e-14 in volts), not exactly 0.
-    flat_windows = sampled <= FLAT_VARIANCE * np.ptp(levels, axis=0) ** 2
+    # A flat window's variance is 0 to the rounding of the running sums (1e-14 in volts), not exactly 0. Rounding on the
+    # scale of the levels' spread, taken between the 2nd and 98th percentiles: a corrupt cell 5000 times the channel's
+    # range had made every window of it "flat" and its floor the rounding (a hostile tester's: no interval found).
+    spread = np.subtract(*np.quantile(levels, [0.98, 0.02], axis=0))
+    spread = np.where(spread > 0, spread, np.ptp(levels, axis=0))
+    flat_windows = sampled <= FLAT_VARIANCE * spread**2
     low = np.quantile(np.where(flat_windows, 0.0, sampled), quantile, axis=0)
     # A channel flat for over ``quantile`` of the windows at one or two levels (clipped at its range, stuck, dropped out)
     # has no noise there: its floor is the quantile of the windows where it moves, or every other row of it would read
