@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import sys
 from pathlib import Path
 
@@ -69,12 +70,21 @@ def apply_calibration(
     check_finite(readings, calibration.channels, table, "reading")
     loads = calibration.apply(torch.from_numpy(readings)).numpy()
 
-    # The same rows as the table's (the same reader skips the same empty rows).
-    header, rows = open_delimited(input_path).header_and_rows()
+    # The same rows as the table's (the same reader skips the same empty rows), written as the input was: its
+    # separator, and its decimal comma where its readings have one, so that the output reads back as the input did.
+    source = open_delimited(input_path)
+    header, rows = source.header_and_rows()
+    first = next(rows)
+    comma = source.decimal_comma and any("," in first[1][header.index(name)] for name in calibration.channels)
+
+    def number(value: float) -> str:
+        return f"{value:.9g}".replace(".", ",") if comma else f"{value:.9g}"
+
     write_csv_atomic(
         output_path,
         [*header, *output_names(calibration.axes, header)],
-        ([*cells, *(f"{value:.9g}" for value in load)] for (_, cells), load in zip(rows, loads)),
+        ([*cells, *map(number, load)] for (_, cells), load in zip(itertools.chain([first], rows), loads)),
+        delimiter=source.separator,
     )
     return len(loads), calibration
 

@@ -134,10 +134,11 @@ def write_json_atomic(path: Path, payload: Any) -> None:
     write_text_atomic(path, text + "\n")
 
 
-def write_csv_atomic(path: Path, header: list[str], rows: Iterable[Iterable[Any]]) -> None:
-    """A CSV with ``header`` then ``rows``, written atomically like :func:`write_text_atomic`."""
+def write_csv_atomic(path: Path, header: list[str], rows: Iterable[Iterable[Any]], delimiter: str = ",") -> None:
+    """A CSV with ``header`` then ``rows`` (cells separated by ``delimiter``), written atomically like
+    :func:`write_text_atomic`."""
     buffer = io.StringIO()
-    writer = csv.writer(buffer)
+    writer = csv.writer(buffer, delimiter=delimiter)
     writer.writerow(header)
     writer.writerows(rows)
     write_text_atomic(path, buffer.getvalue())

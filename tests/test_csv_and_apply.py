@@ -284,3 +284,28 @@ def test_a_pose_held_for_most_of_the_recording_is_not_a_corrupt_cell(tmp_path: P
     path.write_text("s0\n" + "".join(f"{v:.2f}\n" for v in column))
     with pytest.raises(SfmnetError, match=r"first: line 5 column s0 \(4.29e\+09\)"):
         check_far_cells(column[:, None], ["s0"], read_table(path), "reading")
+
+
+def test_apply_writes_as_the_input_was_written_so_its_output_reads_back(tmp_path: Path):
+    """A hostile tester's `;`-separated file with decimal commas came out comma-separated with its cells quoted as
+    text beside dot-decimal loads, and applying again to that output was refused ("not numeric")."""
+    from sfmnet.apply import apply_calibration
+
+    session = tmp_path / "session.csv"
+    write_session(session)
+    train(csv_config(session, *QUIET), tmp_path / "run")
+    calibration = tmp_path / "run" / "calibration.json"
+    semicolons = tmp_path / "semicolons.csv"
+    semicolons.write_text(session.read_text().replace(",", ";").replace(".", ","))
+    apply_calibration(calibration, semicolons, tmp_path / "once.csv", overwrite=False)
+    apply_calibration(calibration, tmp_path / "once.csv", tmp_path / "twice.csv", overwrite=False)
+    apply_calibration(calibration, session, tmp_path / "plain.csv", overwrite=False)
+    twice = (tmp_path / "twice.csv").read_text().splitlines()
+    assert twice[0].endswith("fx_calibrated;fy_calibrated;fz_calibrated;fx_calibrated_2;fy_calibrated_2;fz_calibrated_2")
+    plain = list(csv.DictReader((tmp_path / "plain.csv").open()))
+    again = list(csv.DictReader((tmp_path / "twice.csv").open(), delimiter=";"))
+    for axis in ("fx", "fy", "fz"):
+        np.testing.assert_allclose(
+            [float(row[f"{axis}_calibrated_2"].replace(",", ".")) for row in again],
+            [float(row[f"{axis}_calibrated"]) for row in plain], rtol=1e-8,
+        )
