@@ -30,6 +30,11 @@ START = datetime.datetime(2026, 12, 7, 23, 59, 50)
         ("2026-12-07T08:52:41.250-0500", 20794, 49961.25),
         ("13:52:41.250", 0, 49961.25),
         ("13:52", 0, 49920.0),
+        # A 12-hour clock (a hostile tester's, refused as not numeric).
+        ("1:52:41.250 PM", 0, 49961.25),
+        ("2026-12-07 01:52:41.250 pm", 20794, 49961.25),
+        ("12:00:00 AM", 0, 0.0),
+        ("12:00:00 PM", 0, 43200.0),
     ],
 )
 def test_dates_and_clock_times_are_read_as_a_day_and_seconds_into_it(cell: str, day: int, seconds: float):
@@ -37,7 +42,7 @@ def test_dates_and_clock_times_are_read_as_a_day_and_seconds_into_it(cell: str, 
     assert clock_seconds(cell) == (day, pytest.approx(seconds, abs=1e-9), day > 0)
 
 
-@pytest.mark.parametrize("cell", ["2026-13-40T10:00:00", "13:52:41 CET", "0.25", "n/a", ""])
+@pytest.mark.parametrize("cell", ["2026-13-40T10:00:00", "13:52:41 CET", "13:52 PM", "0.25", "n/a", ""])
 def test_other_cells_are_not_times(cell: str):
     assert clock_seconds(cell) is None
 

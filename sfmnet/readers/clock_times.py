@@ -1,5 +1,5 @@
 """Times as loggers write them, read as seconds: ISO 8601 dates and times (``2026-12-07T13:52:41.250``, with a
-space for the ``T``, ``Z`` or an offset from UTC) and clock times alone (``13:52:41.250``)."""
+space for the ``T``, ``Z`` or an offset from UTC) and clock times alone (``13:52:41.250``, or ``1:52:41.250 PM``)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from sfmnet.errors import SfmnetError
 CLOCK_TIME = re.compile(
     r"(?:(?P<date>\d{4}-\d{2}-\d{2})(?:[T ]|$))?"
     r"(?:(?P<hours>\d{1,2}):(?P<minutes>\d{2})(?::(?P<seconds>\d{2}(?:[.,]\d+)?))?)?"
+    r"(?:\s*(?P<half>[AaPp][Mm]))?"
     r"\s*(?P<zone>Z|[+-]\d{2}:?\d{2})?"
 )
 DAY = 86_400.0
@@ -32,7 +33,13 @@ def clock_seconds(cell: str) -> tuple[int, float, bool] | None:
     except ValueError:  # 2026-13-40
         return None
     seconds = float((match["seconds"] or "0").replace(",", "."))
-    clock = int(match["hours"] or 0) * 3600 + int(match["minutes"] or 0) * 60 + seconds
+    hours = int(match["hours"] or 0)
+    if match["half"]:
+        # A 12-hour clock: 12:30 AM is 00:30, 12:30 PM is 12:30, 1:30 PM is 13:30.
+        if not match["hours"] or not 1 <= hours <= 12:
+            return None
+        hours = hours % 12 + (12 if match["half"].lower() == "pm" else 0)
+    clock = hours * 3600 + int(match["minutes"] or 0) * 60 + seconds
     zone = match["zone"] or "Z"
     offset = 0 if zone == "Z" else (1 if zone[0] == "+" else -1) * (int(zone[1:3]) * 3600 + int(zone[-2:]) * 60)
     return day, clock - offset, bool(match["date"])
