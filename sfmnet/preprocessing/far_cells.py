@@ -68,13 +68,8 @@ def far_cell_limits(lowest: np.ndarray, highest: np.ndarray, rows: int) -> tuple
 
 
 def far_cells(values: np.ndarray) -> np.ndarray:
-    """``f x p`` bool: the far cells of ``values`` (``f x p``, finite), by :func:`far_cell_limits`."""
-    rows = len(values)
-    tail = far_cell_tail(rows)
-    if rows <= 2 * tail + 1:
-        return np.zeros(values.shape, dtype=bool)
-    ordered = np.sort(values, axis=0)
-    above, below = far_cell_limits(ordered[: tail + 1], ordered[rows - tail - 1 :], rows)
+    """``f x p`` bool: the far cells of ``values`` (``f x p``, finite, in memory), by :func:`far_cell_limits`."""
+    above, below = far_cell_limits_chunked(values, chunk_rows=max(1, len(values)))
     return (values >= above) | (values <= below)
 
 
