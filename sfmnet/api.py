@@ -21,6 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from sfmnet.calibration import Calibration
+from sfmnet.data.table_columns import column_names, columns_by_name
 from sfmnet.errors import SfmnetError
 
 # Config groups chosen by name (``model="least_squares"``), as on the command line.
@@ -53,13 +54,15 @@ def calibrate(
     is given, the goodness-of-fit checks; ``load = matrix @ (reading - offset)``.
 
     Args:
-        readings: ``(f, p)`` raw readings (numpy, torch or nested lists), one row per sample, ``p >= n``.
+        readings: ``(f, p)`` raw readings (numpy, torch or nested lists), one row per sample, ``p >= n``; or a
+            table (a pandas DataFrame), read by column name: its columns are the channels, or ``channels`` picks them.
         magnitude: the load's magnitude in load units (e.g. ``9.81`` N for 1 kg, or
             ``9.81`` m/s^2 for an accelerometer); or give ``**{"data.mass": kg}``.
         loads: ``(f, n)`` known loads, NaN on the rows whose load is unknown (at least ``n - 1``
             known rows fix the frame, with ``**{"data.mirror_hint": {"row": r, "axis": a, "sign": s}}``
             for ``n - 1``); None: no known loads, the frame is arbitrary (an orthogonal transform,
-            possibly a reflection: every magnitude right) and ``axes`` names the ``n`` load axes.
+            possibly a reflection: every magnitude right) and ``axes`` names the ``n`` load axes. A table's columns
+            are the axes, or ``axes`` picks them by name.
         time: ``(f,)`` the rows' time in seconds, or as ``numpy.datetime64`` / ``timedelta64`` (a pandas time
             column's values), read from the first row's (turns on static-interval detection), or None.
         poses: ``(f,)`` the pose each row was held in (numbers, NaN for a row of a pose of its own), or None:
@@ -82,12 +85,15 @@ def calibrate(
     Raises:
         SfmnetError: bad input, one line naming the problem and what to do.
     """
-    readings = as_matrix(readings, "readings")
-    f, p = readings.shape
+    readings, channels = named_columns(readings, channels, "readings", "channels")
+    if loads is not None:
+        loads, axes = named_columns(loads, axes, "loads", "axes")
     if isinstance(axes, int) and not isinstance(axes, bool):
         axes = default_axis_names(axes)
     if isinstance(channels, int) and not isinstance(channels, bool):
         channels = [f"z{i}" for i in range(channels)]
+    readings = as_matrix(readings, "readings")
+    f, p = readings.shape
     if loads is None:
         if axes is None:
             raise SfmnetError("with no known loads (loads=None) name the n load axes, e.g. axes=['x', 'y', 'z']")
@@ -177,6 +183,17 @@ def as_number(value: Any, name: str) -> float:
         return float(value)
     except (TypeError, ValueError):
         raise SfmnetError(f"{name} is {value!r}: give a number (load units)") from None
+
+
+def named_columns(values: Any, names: Sequence[str] | int | None, name: str, names_key: str) -> tuple[Any, Any]:
+    """A table's columns picked by ``names`` (None or a count: all of them, named as the table does); an array as it
+    is, with ``names``."""
+    columns = column_names(values, name)
+    if columns is None:
+        return values, names
+    if names is None or isinstance(names, int):
+        return values, [str(column) for column in columns]
+    return columns_by_name(values, list(names), name, f"the {names_key} asked for"), names
 
 
 def as_matrix(values: Any, name: str) -> np.ndarray:

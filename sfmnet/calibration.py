@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from sfmnet.data.table_columns import columns_by_name
 from sfmnet.errors import SfmnetError
 from sfmnet.io import refuse_overwrite, write_json_atomic
 from sfmnet.readers.input_file import special_kind
@@ -56,9 +57,11 @@ class Calibration:
         """Loads of a batch of readings: ``(Z - 1 o^T) C^T``, ``f x p`` in, ``f x n`` out (load units).
 
         A floating torch tensor gives a tensor in its dtype (integer counts: float64); anything else
-        (numpy, lists) a float64 numpy array.
+        (numpy, lists) a float64 numpy array. A table (a pandas DataFrame) is read by column name, as
+        ``python -m sfmnet apply`` reads a file: the calibration's channels, in any order, other columns ignored.
         """
         if not isinstance(readings, torch.Tensor):
+            readings = columns_by_name(readings, self.channels, "readings", "the calibration's channels")
             return self.apply(torch.from_numpy(np.asarray(readings, dtype=np.float64))).numpy()
         if readings.ndim != 2 or readings.shape[1] != len(self.channels):
             raise SfmnetError(

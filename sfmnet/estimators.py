@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from sfmnet.api import as_matrix, compose_run_config
+from sfmnet.data.table_columns import column_names
 from sfmnet.errors import SfmnetError
 
 LEARNERS = {"eigenspace": "eigenspace", "autoencoder": "linear_autoencoder"}
@@ -93,7 +94,7 @@ class CommandLearner:
 
         if self.learner not in LEARNERS:
             raise SfmnetError(f"learner is '{self.learner}': use one of {', '.join(LEARNERS)}")
-        names = column_names(sensors)
+        names = column_names(sensors, "sensors")
         readings = finite_matrix(sensors, "sensors")
         labels = np.asarray(commands, dtype=object)
         labels = labels[:, None] if labels.ndim == 1 else labels
@@ -149,7 +150,7 @@ class CommandLearner:
     def _read(self, sensors: Any) -> Any:
         if not hasattr(self, "learner_"):
             raise SfmnetError("this CommandLearner is not fitted yet: call fit(sensors, commands) first")
-        names = column_names(sensors)
+        names = column_names(sensors, "sensors")
         readings = finite_matrix(sensors, "sensors")
         fitted = list(getattr(self, "feature_names_in_", []))
         if names is None and fitted:
@@ -185,19 +186,6 @@ class CommandLearner:
     def transform(self, sensors: Any) -> np.ndarray:
         """The full ``[sensors; one-hot commands]`` vectors the learner reconstructs from ``sensors``: ``f x m``."""
         return self._read(sensors).reconstruction.numpy()
-
-
-def column_names(values: Any) -> list[Any] | None:
-    """A table's column names (a pandas DataFrame's, strings or numbers), None for an array; a name given twice is
-    refused (the command line refuses a column named twice)."""
-    columns = getattr(values, "columns", None)
-    if columns is None:
-        return None
-    names = [name.item() if hasattr(name, "item") else name for name in columns]
-    twice = sorted({str(name) for name in names if names.count(name) > 1})
-    if twice:
-        raise SfmnetError(f"sensors has columns named twice ({', '.join(twice)}): give each sensor column its own name")
-    return names
 
 
 def finite_matrix(values: Any, name: str) -> np.ndarray:

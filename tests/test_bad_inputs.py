@@ -447,7 +447,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "time in s read as ms": (
         lambda t: continuous(t, poses=10, retime=lambda time: time / 1000),
         r"the static-interval window of 0.5 s spans [\d,]+ rows, over a quarter of the recording's 1,750 \(2e-05 s a row\): "
-        r"check data.time_unit \(a time column in s read as ms\?\)",
+        r"check data.time_unit \(a time column in s read as ms, or a spreadsheet's serial dates, which need data.time_unit=d\?\)",
     ),
     # Every third row 10 periods after the one before (a rate that changes within the file, or stamps not the rows').
     "time column of two rates": (

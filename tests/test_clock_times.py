@@ -18,6 +18,7 @@ from sfmnet.simulators.simulated_stream import write_stream_csv
 from tests.test_static_intervals import MASS, calibrate, stream
 
 START = datetime.datetime(2026, 12, 7, 23, 59, 50)
+SPREADSHEET_EPOCH = datetime.datetime(1899, 12, 30)
 
 
 @pytest.mark.parametrize(
@@ -28,6 +29,9 @@ START = datetime.datetime(2026, 12, 7, 23, 59, 50)
         ("2026-12-07T13:52:41.250Z", 20794, 49961.25),
         ("2026-12-07T14:52:41.250+01:00", 20794, 49961.25),
         ("2026-12-07T08:52:41.250-0500", 20794, 49961.25),
+        # An offset of whole hours (ISO 8601's +01; a hostile tester's were refused as not numeric).
+        ("2026-12-07T14:52:41.250+01", 20794, 49961.25),
+        ("2026-12-07T19:22:41.250+05:30", 20794, 49961.25),
         ("13:52:41.250", 0, 49961.25),
         ("13:52", 0, 49920.0),
         # A 12-hour clock (a hostile tester's, refused as not numeric).
@@ -73,19 +77,24 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     UTC, and as clock times alone."""
     folder = tmp_path_factory.mktemp("clock")
     recording, _ = stream(poses=10)
-    paths = {"seconds": folder / "seconds.csv", "iso": folder / "iso.csv", "clock": folder / "clock.csv"}
+    paths = {name: folder / f"{name}.csv" for name in ("seconds", "iso", "clock", "serial")}
     write_stream_csv(recording, paths["seconds"])
     rewrite_time(paths["seconds"], paths["iso"], lambda t: t.isoformat(timespec="milliseconds") + "+01:00")
     rewrite_time(paths["seconds"], paths["clock"], lambda t: t.strftime("%H:%M:%S.%f")[:-3])
+    # A spreadsheet's serial dates: days since 1899-12-30 (a hostile tester's were refused with a hint about ms).
+    rewrite_time(paths["seconds"], paths["serial"], lambda t: f"{(t - SPREADSHEET_EPOCH) / datetime.timedelta(days=1):.10f}")
     return paths
 
 
-@pytest.mark.parametrize("form,experiment", [("iso", "calibrate_csv"), ("clock", "calibrate_stream")])
+@pytest.mark.parametrize(
+    "form,experiment,overrides",
+    [("iso", "calibrate_csv", ()), ("clock", "calibrate_stream", ()), ("serial", "calibrate_csv", ("data.time_unit=d",))],
+)
 def test_a_time_column_of_dates_or_clock_times_finds_the_intervals_of_seconds(
-    recordings: dict[str, Path], tmp_path: Path, form: str, experiment: str
+    recordings: dict[str, Path], tmp_path: Path, form: str, experiment: str, overrides: tuple[str, ...]
 ):
     reference = calibrate(recordings["seconds"], tmp_path / "seconds", experiment=experiment)
-    stamped = calibrate(recordings[form], tmp_path / form, experiment=experiment)
+    stamped = calibrate(recordings[form], tmp_path / form, *overrides, experiment=experiment)
     assert stamped["static/intervals"] == reference["static/intervals"] >= 10
     assert stamped["static/rows_kept"] == reference["static/rows_kept"]
     matrices = [np.array(json.loads((tmp_path / run / "calibration.json").read_text())["matrix"]) for run in ("seconds", form)]

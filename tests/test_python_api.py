@@ -196,6 +196,36 @@ class Frame:
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         return self.values if dtype is None else self.values.astype(dtype)
 
+    def __getitem__(self, names: list) -> Frame:
+        return Frame(self.values[:, [self.columns.index(name) for name in names]], list(names))
+
+
+def test_calibrate_and_apply_read_a_table_by_its_column_names(tmp_path: Path):
+    """A hostile tester's: a DataFrame's columns were read by position, so a reordered frame gave loads 222 % off
+    through apply with no warning, and channels=[...] named a reordered frame's columns wrongly."""
+    write_session(tmp_path / "session.csv")
+    header, table = read_session(tmp_path / "session.csv")
+    channels, axes = header[1:7], header[7:10]
+    reference = sfmnet.calibrate(table[:, 1:7], magnitude=9.81, loads=table[:, 7:10], time=table[:, 0], channels=channels, axes=axes)
+    order = [3, 0, 5, 1, 4, 2]
+    readings = Frame(table[:, 1:7][:, order], [channels[i] for i in order])
+    loads = Frame(table[:, [9, 7, 8]], [axes[2], axes[0], axes[1]])
+    # The table's names are the channels and axes, in the table's order...
+    named = sfmnet.calibrate(readings, magnitude=9.81, loads=loads, time=table[:, 0])
+    assert named.channels == readings.columns and named.axes == loads.columns
+    # ... or channels=[...] and axes=[...] pick them by name.
+    picked = sfmnet.calibrate(readings, magnitude=9.81, loads=loads, time=table[:, 0], channels=channels, axes=axes)
+    np.testing.assert_allclose(picked.matrix.numpy(), reference.matrix.numpy(), rtol=0, atol=1e-9)
+    expected = reference.apply(table[:, 1:7])
+    for calibration in (reference, named, picked):
+        # Whatever the order of the table's columns, or of the calibration's, each load is in its axis's column.
+        applied = calibration.apply(readings)[:, [calibration.axes.index(axis) for axis in axes]]
+        np.testing.assert_allclose(applied, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
+    with pytest.raises(sfmnet.SfmnetError, match=r"readings has no column s5: the calibration's channels are .*read by name"):
+        reference.apply(Frame(table[:, 1:7], [*channels[:5], "ch9"]))
+    with pytest.raises(sfmnet.SfmnetError, match="loads has no column fw: the axes asked for are fw"):
+        sfmnet.calibrate(readings, magnitude=9.81, loads=loads, axes=["fw", "fy", "fz"])
+
 
 def test_command_learner_reads_a_table_by_its_column_names():
     """A hostile tester's: fitted on a DataFrame, predicting on its columns reordered scored 0.19 against 0.99, by

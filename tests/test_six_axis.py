@@ -6,12 +6,15 @@ import csv
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from sfmnet.data.recording import load_unit_for
 from sfmnet.readers.csv_calibration import CsvCalibrationDataModule
+from sfmnet.readers.streamed_calibration import StreamedCalibrationDataModule
 from sfmnet.simulators.simulated_force_torque import ForceTorqueSensorDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.eval.calibration_headline import trust_lines
@@ -130,6 +133,25 @@ def test_six_axis_csv_gives_the_same_calibration(tmp_path: Path):
     # Six load columns are forces then torques, reported apart (a new user's six-axis file was reported in N alone).
     assert from_file.data.load_unit == "N, N m"
     assert torch.allclose(models[0].calibration_matrix(), models[1].calibration_matrix(), rtol=1e-5, atol=1e-9)
+
+
+def test_a_load_unit_says_both_units_on_six_axes_and_one_on_fewer():
+    # A six-axis file with data.load_unit=N had its torques reported in "N m" by a hard-coded label, whatever they were.
+    assert load_unit_for(None, 6) == "N, N m" and load_unit_for(None, 3) == "N"
+    assert load_unit_for("mN, mN mm", 6) == "mN, mN mm" and load_unit_for("uT", 3) == "uT"
+    with pytest.raises(SfmnetError, match=r"data.load_unit='N' names one unit, but a six-axis sensor's loads"):
+        load_unit_for("N", 6)
+    with pytest.raises(SfmnetError, match="names a force and a torque unit, but the sensor has 3 load axes"):
+        load_unit_for("N, N m", 3)
+
+
+def test_a_streamed_six_axis_session_reports_forces_and_torques_apart(tmp_path: Path):
+    np.savetxt(tmp_path / "ft.csv", np.zeros((2, 14)), delimiter=",", header=",".join(
+        [f"s{i}" for i in range(8)] + ["fx", "fy", "fz", "mx", "my", "mz"]), comments="")
+    axes = ["fx", "fy", "fz", "mx", "my", "mz"]
+    assert StreamedCalibrationDataModule(str(tmp_path / "ft.csv"), load_columns=axes).load_unit == "N, N m"
+    with pytest.raises(SfmnetError, match="give both, force then torque"):
+        StreamedCalibrationDataModule(str(tmp_path / "ft.csv"), load_columns=axes, load_unit="N")
 
 
 def test_six_axis_csv_names_a_configuration_without_mass(tmp_path: Path):

@@ -9,6 +9,7 @@ from functools import cached_property
 import numpy as np
 import torch
 
+from sfmnet.errors import SfmnetError
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.preprocessing.revisited_poses import RevisitedPoses
 from sfmnet.preprocessing.row_repeats import RowRepeats
@@ -189,6 +190,28 @@ def empty_load_columns(load_columns: list[str], path: str) -> str:
         "fill them on the known-load rows or, with no known load (the frame arbitrary), set data.load_columns=[] and "
         "name the axes with data.axes=[...]"
     )
+
+
+def load_unit_for(load_unit: str | None, axes: int) -> str:
+    """The unit written beside every load figure: ``load_unit``, checked against the ``axes`` load axes.
+
+    Six axes are forces and torques, reported apart, so their unit names both, force then torque
+    (``"N, N m"``); None: ``"N, N m"`` for six axes, ``"N"`` otherwise.
+    """
+    if load_unit is None:
+        return "N, N m" if axes == 6 else "N"
+    force_unit, _, torque_unit = str(load_unit).partition(", ")
+    if axes == 6 and not (force_unit and torque_unit):
+        raise SfmnetError(
+            f"data.load_unit={load_unit!r} names one unit, but a six-axis sensor's loads are forces and torques: "
+            "give both, force then torque, e.g. data.load_unit='N, N m' (the default)"
+        )
+    if axes != 6 and torque_unit:
+        raise SfmnetError(
+            f"data.load_unit={load_unit!r} names a force and a torque unit, but the sensor has {axes} load axes, "
+            "all forces: give one unit, e.g. data.load_unit=N"
+        )
+    return str(load_unit)
 
 
 def first_magnitude_mismatch(forces: np.ndarray, magnitudes: np.ndarray, tolerance: float) -> int | None:

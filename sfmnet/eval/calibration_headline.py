@@ -53,7 +53,7 @@ def trust_lines(
         if math.isfinite(magnitude) and magnitude > 0 and torque_unit == "":
             residual += f" ({100 * metrics['load_residual/force_rms'] / magnitude:.3g} % of F = {magnitude:g} {force_unit})"
         if "load_residual/torque_rms" in metrics:
-            residual += f", torque {metrics['load_residual/torque_rms']:.4g} {torque_unit or 'N m'} RMS"
+            residual += f", torque {metrics['load_residual/torque_rms']:.4g} {torque_unit} RMS"
         lines.append(f"residuals    {residual}; {metrics['residual_rms']:.4g} raw units RMS per channel")
     if "goodness/known_load_rms" in metrics:
         percent = f" ({metrics['goodness/known_load_pct']:.3g} % of their size)" if "goodness/known_load_pct" in metrics else ""

@@ -256,8 +256,8 @@ def find_static_intervals(
     if period is not None and 4 * window_rows > f:
         raise SfmnetError(
             f"the static-interval window of {window:g} s spans {window_rows:,} rows, over a quarter of the recording's "
-            f"{f:,} ({period:.3g} s a row): check data.time_unit (a time column in s read as ms?), or set "
-            "data.static.window shorter than a hold"
+            f"{f:,} ({period:.3g} s a row): check data.time_unit (a time column in s read as ms, or a spreadsheet's "
+            "serial dates, which need data.time_unit=d?), or set data.static.window shorter than a hold"
         )
     floor = noise_floor(readings, half, noise_quantile, scan.step, chunk_rows, starts)
     statistic = np.empty(f, dtype=np.float32)

@@ -15,7 +15,7 @@ CLOCK_TIME = re.compile(
     r"(?:(?P<date>\d{4}-\d{2}-\d{2})(?:[T ]|$))?"
     r"(?:(?P<hours>\d{1,2}):(?P<minutes>\d{2})(?::(?P<seconds>\d{2}(?:[.,]\d+)?))?)?"
     r"(?:\s*(?P<half>[AaPp][Mm]))?"
-    r"\s*(?P<zone>Z|[+-]\d{2}:?\d{2})?"
+    r"\s*(?P<zone>Z|[+-]\d{2}(?::?\d{2})?)?"
 )
 DAY = 86_400.0
 EPOCH = datetime.date(1970, 1, 1)
@@ -41,7 +41,8 @@ def clock_seconds(cell: str) -> tuple[int, float, bool] | None:
         hours = hours % 12 + (12 if match["half"].lower() == "pm" else 0)
     clock = hours * 3600 + int(match["minutes"] or 0) * 60 + seconds
     zone = match["zone"] or "Z"
-    offset = 0 if zone == "Z" else (1 if zone[0] == "+" else -1) * (int(zone[1:3]) * 3600 + int(zone[-2:]) * 60)
+    # +01, +0130 or +01:30 (hours, then minutes where given).
+    offset = 0 if zone == "Z" else (1 if zone[0] == "+" else -1) * (int(zone[1:3]) * 3600 + int(zone[3:].lstrip(":") or 0) * 60)
     return day, clock - offset, bool(match["date"])
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
-from sfmnet.data.recording import CalibrationData, CalibrationRecording, empty_load_columns, first_magnitude_mismatch
+from sfmnet.data.recording import CalibrationData, CalibrationRecording, empty_load_columns, first_magnitude_mismatch, load_unit_for
 from sfmnet.preprocessing.revisited_poses import RevisitedPoses, hold_ids, holds_per_pose, revisited_poses
 from sfmnet.preprocessing.row_repeats import row_repeats
 from sfmnet.preprocessing.static_intervals import StaticIntervals
@@ -102,8 +102,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         self.mass = mass
         self.mirror_hint = mirror_hint
         self.known_load_tolerance = known_load_tolerance
-        # Six axes are forces and torques, reported apart (the headline, the known loads' figures).
-        self.load_unit = load_unit or ("N, N m" if len(self.axes) == 6 else "N")
+        self.load_unit = load_unit_for(load_unit, len(self.axes))
         self.configuration_column = configuration_column
         self.configurations = configurations
         self.group_column = group_column

@@ -23,7 +23,8 @@ from sfmnet.preprocessing.static_intervals import (
     find_static_intervals,
 )
 
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+# d: a spreadsheet's serial dates (Excel, LibreOffice) or MATLAB's datenum, days since an epoch.
+TIME_UNITS = {"d": 86_400.0, "h": 3_600.0, "min": 60.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 STATIC_KEYS = {"window", "min_duration", "threshold", "noise_quantile"}
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from sfmnet.readers.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields, monotonic_channel_warnings
-from sfmnet.data.recording import CalibrationData
+from sfmnet.data.recording import CalibrationData, load_unit_for
 from sfmnet.readers.clock_times import clock_seconds
 from sfmnet.readers.delimited import open_delimited
 from sfmnet.readers.row_file import RowFileDataModule, column_index
@@ -40,7 +40,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         columns: names of a ``.npy``'s columns.
         mirror_hint: ``{row: <data row, 0-based>, axis: <load column>, sign: <+1|-1>}``, with ``n - 1`` known loads.
         known_load_tolerance: see :class:`StreamedRecording`.
-        load_unit: for reports.
+        load_unit: for reports; None: ``N``, or ``N, N m`` for six axes (force, then torque).
         gravity: m/s^2, for ``mass``.
         block_rows, cache_dir: see :class:`RowFileDataModule`.
         static_intervals, time_unit, static: see :class:`~sfmnet.readers.csv_calibration.CsvCalibrationDataModule`;
@@ -61,7 +61,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         columns: list[str] | None = None,
         mirror_hint: dict | None = None,
         known_load_tolerance: float = 0.02,
-        load_unit: str = "N",
+        load_unit: str | None = None,
         gravity: float = STANDARD_GRAVITY,
         block_rows: int | None = None,
         cache_dir: str | None = None,
@@ -77,7 +77,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         self.time_column = time_column
         self.mirror_hint = mirror_hint
         self.known_load_tolerance = known_load_tolerance
-        self.load_unit = load_unit
+        self.load_unit = load_unit_for(load_unit, len(self.axes))
         self.gravity = gravity
         self.static = static_settings(static_intervals, time_column, time_unit, static)
 

@@ -255,15 +255,16 @@ def against_best_baseline(results: dict[str, MethodResult], main: str) -> str | 
 
 def headline(result: MethodResult, unit: str) -> str:
     m = result.metrics
+    force_unit, _, torque_unit = unit.partition(", ")
     parts = []
     if "eval/max_error_pct" in m:
         parts.append(f"worst |load| error {m['eval/max_error_pct']:.3f} %, worst smoothed std {m['eval/max_std_dev']:.3f} {unit}")
     if "lopo/force_rms" in m:
-        torque = f", torque {m['lopo/torque_rms']:.4f} N m" if "lopo/torque_rms" in m else ""
-        parts.append(f"leave-one-out force error {m['lopo/force_rms']:.3f} {unit.split(', ')[0]} RMS{torque}")
+        torque = f", torque {m['lopo/torque_rms']:.4f} {torque_unit}" if "lopo/torque_rms" in m else ""
+        parts.append(f"leave-one-out force error {m['lopo/force_rms']:.3f} {force_unit} RMS{torque}")
     if "test/force_rms" in m:
-        torque = f", torque {m['test/torque_rms']:.4f} N m" if "test/torque_rms" in m else ""
-        parts.append(f"held-out force error {m['test/force_rms']:.3f} {unit.split(', ')[0]} RMS{torque}")
+        torque = f", torque {m['test/torque_rms']:.4f} {torque_unit}" if "test/torque_rms" in m else ""
+        parts.append(f"held-out force error {m['test/force_rms']:.3f} {force_unit} RMS{torque}")
     if "test/magnitude_rms" in m:
         parts.append(
             f"held-out |load| - magnitude {m['test/magnitude_rms']:.4g} {unit} RMS over {m['test/groups']:.0f} intervals"

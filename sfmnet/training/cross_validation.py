@@ -95,7 +95,7 @@ def folds_figure(folds: list[FoldError], unit: str, known_groups: list[int]) -> 
     """
     keys = list(folds[0].errors)
     force_unit, _, torque_unit = unit.partition(", ")
-    units = {"force_rms": force_unit, "torque_rms": torque_unit or "N m"}
+    units = {"force_rms": force_unit, "torque_rms": torque_unit}
     labels = {"force_rms": "held-out force error", "torque_rms": "held-out torque error"}
     methods = list(dict.fromkeys(f.method for f in folds))
     groups = sorted({f.group for f in folds} | set(known_groups))
