@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hydra.utils import instantiate
 
 from sfmnet.apply import apply_calibration
 from sfmnet.eval.calibration_headline import trust_lines
@@ -163,6 +164,25 @@ def test_two_known_loads_need_the_mirror_bit(tmp_path: Path):
     train(cfg, tmp_path / "run2")
     matrix = torch.tensor(json.loads((tmp_path / "run2" / "calibration.json").read_text())["matrix"])
     assert float((matrix - truth).norm() / truth.norm()) < 0.05
+
+
+@pytest.mark.parametrize("experiment", ["calibrate_csv", "calibrate_stream"])
+def test_a_mirror_hint_below_blank_lines_names_its_line(tmp_path: Path, experiment: str):
+    """A hostile tester's: three empty rows above the hinted row, which counted by the file's lines was another row;
+    the wrong mirror was fitted with every check passing. The run now names the line its row is on."""
+    session = tmp_path / "session.csv"
+    write_session(session, known_loads=2, edit=lambda rows: rows.insert(3, [""] * len(rows[0])) or rows.insert(3, []))
+    overrides = [f"experiment={experiment}", f"data.path={session}", "data.magnitude=9.81", "data.time_column=time"]
+    warnings = {}
+    for row in (1, 5):
+        datamodule = instantiate(compose_config([*overrides, f"data.mirror_hint={{row: {row}, axis: fz, sign: 1}}"]).data)
+        datamodule.setup()
+        warnings[row] = datamodule.data.warnings
+    assert not any("mirror_hint" in warning for warning in warnings[1])
+    assert any(
+        warning.startswith(f"data.mirror_hint.row 5 is line 9 of {session}: 2 blank or comment lines above it are not rows")
+        for warning in warnings[5]
+    ), warnings[5]
 
 
 def test_apply_refuses_other_channels_and_existing_output(tmp_path: Path):

@@ -221,12 +221,18 @@ class CsvCalibrationDataModule(CalibrationDataModule):
             static_intervals=detection, test=test,
             warnings=[
                 *monotonic_channel_warnings(readings, channels, "the file's rows"), *self.unread_time_warnings(table),
-                *unvisited,
+                *unvisited, *self.hint_line_warnings(table),
             ],
             row_repeats=row_repeats(readings) if detection is None else detection.repeats,
             stuck_readings=[stuck for stuck in stuck_readings(readings, len(self.axes)) if keep[stuck.first : stuck.stop].any()],
             revisited_poses=revisits,
         )
+
+    def hint_line_warnings(self, table: Table) -> list[str]:
+        if self.mirror_hint is None or self.configuration_column or table.lines is None:
+            return []
+        row = int(self.mirror_hint["row"])
+        return hint_row_warnings(row, int(table.lines[0]), int(table.lines[row]), table.where(row))
 
     def unread_time_warnings(self, table: Table) -> list[str]:
         """Without a time column, a note for each column of dates or clock times left unread: named, it would find the
@@ -417,6 +423,21 @@ def mirror_hint_fields(hint: dict, load_columns: list[str]) -> tuple[int, int, i
 
 # Fewer rows than this may rise or fall throughout by chance.
 MONOTONIC_MIN_ROWS = 10
+
+
+def hint_row_warnings(row: int, first_line: int, line: int, where: str) -> list[str]:
+    """A note where lines that are not rows (blank lines, comments, a quoted cell's further lines) lie above the
+    mirror hint's data ``row``, which starts on file ``line`` (data row 0 on ``first_line``): counted by the
+    file's lines, as in an editor or a spreadsheet, the row meant is another (a hostile tester's hint picked the
+    wrong mirror, every check passing)."""
+    skipped = line - first_line - row
+    if skipped <= 0:
+        return []
+    return [
+        f"data.mirror_hint.row {row} is {where}: {skipped} blank or comment line{'s' if skipped > 1 else ''} above it "
+        "are not rows, so counting the file's lines gives another row; check that this is the row meant (rows count "
+        "from 0 after the header, skipping such lines), since its sign sets the frame's mirror"
+    ]
 
 
 def monotonic_channel_warnings(readings: np.ndarray, channels: list[str], span: str) -> list[str]:

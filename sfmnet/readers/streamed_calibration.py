@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from sfmnet.readers.csv_calibration import calibration_magnitude, load_axes, mirror_hint_fields, monotonic_channel_warnings
+from sfmnet.readers.csv_calibration import (
+    calibration_magnitude, hint_row_warnings, load_axes, mirror_hint_fields, monotonic_channel_warnings,
+)
 from sfmnet.data.recording import CalibrationData, load_unit_for
 from sfmnet.readers.clock_times import clock_seconds
 from sfmnet.readers.delimited import open_delimited
@@ -124,10 +126,13 @@ class StreamedCalibrationDataModule(RowFileDataModule):
                 stuck for stuck in stuck_readings(MappedColumns(layout, recording.channel_index), recording.rank)
                 if recording.keep is None or recording.keep[stuck.first : stuck.stop].any()
             ],
-            warnings=monotonic_channel_warnings(
-                np.asarray(mapped_rows(layout, 0, first)[:, recording.channel_index]), channels,
-                "the file's rows" if first == recording.rows else f"the first {first} rows",
-            ),
+            warnings=[
+                *monotonic_channel_warnings(
+                    np.asarray(mapped_rows(layout, 0, first)[:, recording.channel_index]), channels,
+                    "the file's rows" if first == recording.rows else f"the first {first} rows",
+                ),
+                *self.hint_line_warnings(),
+            ],
         )
 
     @property
@@ -164,6 +169,12 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         column = header.index(self.time_column) if self.time_column in header else None
         if first is not None and column is not None and column < len(first[1]) and clock_seconds(first[1][column]):
             raise SfmnetError(DATES_WITH_A_UNIT.format(name=self.time_column))
+
+    def hint_line_warnings(self) -> list[str]:
+        if self.mirror_hint is None or self.path.suffix == ".npy":
+            return []
+        row, delimited = int(self.mirror_hint["row"]), open_delimited(self.path)
+        return hint_row_warnings(row, delimited.line_of_row(0), delimited.line_of_row(row), self.row_place(row))
 
     def read_mirror_hint(self, recording: StreamedRecording) -> None:
         """The hint's row, read from the file alone (one row through the memory map)."""
