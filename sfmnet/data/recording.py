@@ -214,6 +214,21 @@ def load_unit_for(load_unit: str | None, axes: int) -> str:
     return str(load_unit)
 
 
+def first_torque_mismatch(wrenches: np.ndarray, maps: np.ndarray, tolerance: float) -> tuple[int, np.ndarray] | None:
+    """The first known wrench (``k x 6``, force then torque) whose torque is off ``r x F`` (its force about its row's
+    centre of mass), with that torque; None where all match.
+
+    ``maps`` (``k x 3 x 6``) is each row's :func:`~sfmnet.linalg.wrench.wrench_map` ``m g [I, [r]x^T]``, so
+    ``r x F = F [r]x^T``. Off means by more than ``tolerance`` of ``m g L``, ``L`` the largest ``|r|`` of the rows (a
+    torque's size needs a lever: a centre of mass on the sensor's origin expects none).
+    """
+    weight = maps[:, 0, 0]
+    expected = np.einsum("ki,kij->kj", wrenches[:, :3], maps[:, :, 3:]) / weight[:, None]
+    lever = np.linalg.norm(maps[:, :, 3:], axis=(1, 2)) / (np.sqrt(2) * weight)
+    off = np.linalg.norm(wrenches[:, 3:] - expected, axis=1) > tolerance * weight * lever.max()
+    return (int(np.argmax(off)), expected[np.argmax(off)]) if off.any() and lever.max() > 0 else None
+
+
 def first_magnitude_mismatch(forces: np.ndarray, magnitudes: np.ndarray, tolerance: float) -> int | None:
     """The first of the known ``forces`` (``k x 3``) whose norm is off its ``magnitudes`` (``k``) by more than ``tolerance``."""
     off = np.abs(np.linalg.norm(forces, axis=1) / magnitudes - 1) > tolerance

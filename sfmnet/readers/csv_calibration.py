@@ -10,7 +10,9 @@ import numpy as np
 import torch
 
 from sfmnet.data.calibration_datamodule import CalibrationDataModule
-from sfmnet.data.recording import CalibrationData, CalibrationRecording, empty_load_columns, first_magnitude_mismatch, load_unit_for
+from sfmnet.data.recording import (
+    CalibrationData, CalibrationRecording, empty_load_columns, first_magnitude_mismatch, first_torque_mismatch, load_unit_for,
+)
 from sfmnet.preprocessing.revisited_poses import RevisitedPoses, hold_ids, holds_per_pose, revisited_poses
 from sfmnet.preprocessing.row_repeats import row_repeats
 from sfmnet.preprocessing.static_intervals import StaticIntervals
@@ -196,6 +198,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         if self.configuration_column:
             configuration, maps = self.parse_configurations(table)
             self.check_known_magnitudes(loads[:, :3], (maps[:, 0, 0].numpy())[configuration.numpy()], table)
+            self.check_known_torques(loads, maps.numpy()[configuration.numpy()], table)
             recording = CalibrationRecording(
                 readings=torch.from_numpy(readings)[rows],
                 loads=torch.from_numpy(loads)[rows],
@@ -275,6 +278,20 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 f"{np.linalg.norm(forces[known[off]]):.6g} but {source} {magnitudes[known[off]]:.6g} "
                 f"({100 * self.known_load_tolerance:g} % allowed): the known loads must be the calibration mass; "
                 "check the load columns, units and masses"
+            )
+
+    def check_known_torques(self, wrenches: np.ndarray, maps: np.ndarray, table: Table) -> None:
+        """Known torques must be their force's about the row's centre of mass: ``M = r x F``."""
+        known = np.nonzero(~np.isnan(wrenches).any(axis=1))[0]
+        off = first_torque_mismatch(wrenches[known], maps[known], self.known_load_tolerance)
+        if off is not None:
+            row, expected = int(known[off[0]]), off[1]
+            torque_unit = self.load_unit.partition(", ")[2]
+            raise SfmnetError(
+                f"the known torque on {table.where(row)} is ({', '.join(f'{v:.4g}' for v in wrenches[row, 3:])}) "
+                f"{torque_unit} but its configuration's centre of mass puts its force at r x F = "
+                f"({', '.join(f'{v:.4g}' for v in expected)}) {torque_unit}: check that the torque columns are in N m, "
+                "the centres of mass in m in the sensor's frame, and the load columns force then torque"
             )
 
     def parse_configurations(self, table: Table) -> tuple[torch.Tensor, torch.Tensor]:
