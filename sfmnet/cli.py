@@ -145,6 +145,22 @@ def run_sweep_job(action: Callable[[], object], job_dir: Path) -> None:
     exit_on_user_error(job, run_dir=job_dir)
 
 
+def shared_sweep_dir(overrides: list[str]) -> list[str]:
+    """A sweep over experiments without its own ``hydra.sweep.dir``: one directory named after them all.
+
+    Each job resolves the default ``runs/multirun/${experiment_name}/...`` from its own experiment, so the jobs of a
+    sweep over two experiments landed in two directories and the sweep's summary held only the first's (a hostile
+    tester's, exit 0).
+    """
+    if any(o.lstrip("+").startswith("hydra.sweep.dir=") for o in overrides):
+        return []
+    swept = [o.split("=", 1)[1] for o in overrides if o.startswith("experiment=") and ("," in o or "(" in o)]
+    if not swept:
+        return []
+    names = swept[0].split(",") if "(" not in swept[0] else ["experiments"]
+    return [f"hydra.sweep.dir=runs/multirun/{'+'.join(name.strip() for name in names)}/${{now:%Y-%m-%d_%H-%M-%S-%f}}"]
+
+
 def check_train_arguments(args: list[str]) -> list[str]:
     """Typos and bad values, caught before Hydra starts (a DDP worker re-enters checked); the run directory is claimed
     on Hydra's parsed config (:mod:`sfmnet.training.run_directory`). Returns the overrides for Hydra (a sweep's keys
@@ -155,9 +171,8 @@ def check_train_arguments(args: list[str]) -> list[str]:
     from sfmnet.config_check import check_overrides
 
     sweep = any(flag in args for flag in MULTIRUN_FLAGS)
-    return [*check_overrides([a for a in args if a not in MULTIRUN_FLAGS], config_dir(), sweep=sweep), *(
-        a for a in args if a in MULTIRUN_FLAGS
-    )]
+    overrides = check_overrides([a for a in args if a not in MULTIRUN_FLAGS], config_dir(), sweep=sweep)
+    return [*overrides, *(shared_sweep_dir(overrides) if sweep else []), *(a for a in args if a in MULTIRUN_FLAGS)]
 
 
 def train_command() -> None:

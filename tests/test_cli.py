@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from sfmnet.cli import shared_sweep_dir
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
 from tests.conftest import REPO, compose_config
@@ -157,6 +158,20 @@ def test_a_sweep_goes_on_past_a_failed_job_and_says_which_failed(tmp_path: Path)
     assert "1 of 2 jobs failed (job 0)" in result.stdout
     with (sweep_dir / "sweep.csv").open() as stream:
         assert [row["job"] for row in csv.DictReader(stream)] == ["1"]
+
+
+def test_a_sweep_over_experiments_is_summarised_in_one_directory(tmp_path: Path):
+    """Each job named the default sweep directory after its own experiment: a hostile tester's sweep over two
+    experiments landed in two directories, and the summary of "4 jobs" held only the first experiment's."""
+    result = sfmnet("train", "-m", "experiment=fingertip,lord3dof", "trainer.max_epochs=2", *QUIET, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    (sweep_dir,) = (tmp_path / "runs" / "multirun").glob("*/*")
+    assert sweep_dir.parent.name == "fingertip+lord3dof"
+    with (sweep_dir / "sweep.csv").open() as stream:
+        assert [row["experiment"] for row in csv.DictReader(stream)] == ["fingertip", "lord3dof"]
+    # A directory given is kept, and a sweep of one experiment keeps the default.
+    assert shared_sweep_dir(["experiment=a,b", "hydra.sweep.dir=x"]) == [] == shared_sweep_dir(["experiment=a", "seed=0,1"])
+    assert shared_sweep_dir(["experiment=glob(finger*)"])[0].startswith("hydra.sweep.dir=runs/multirun/experiments/")
 
 
 def test_ctrl_c_after_the_fit_is_one_line_naming_the_checkpoint(tmp_path: Path, capsys: pytest.CaptureFixture):
