@@ -62,7 +62,8 @@ class Calibration:
         """
         if not isinstance(readings, torch.Tensor):
             readings = columns_by_name(readings, self.channels, "readings", "the calibration's channels")
-            return self.apply(torch.from_numpy(np.asarray(readings, dtype=np.float64))).numpy()
+            # A copy where numpy's strides are negative (a reversed view), which torch cannot share.
+            return self.apply(torch.from_numpy(np.ascontiguousarray(readings, dtype=np.float64))).numpy()
         if readings.ndim != 2 or readings.shape[1] != len(self.channels):
             raise SfmnetError(
                 f"readings of shape {tuple(readings.shape)}: give (f, {len(self.channels)}) raw readings, "

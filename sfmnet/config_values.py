@@ -135,7 +135,12 @@ RULES: dict[str, Rule] = {
     "seed": Bound(int, low=0, high=2**32 - 1),
     "threads": lambda key, value: None if value == "auto" else Bound(int, low=1, why="or auto")(key, value),
     "ckpt_path": checkpoint_problem,
-    "trainer.max_epochs": Bound(int, low=0, nullable=True, why="Lightning's -1, no limit, never ends a fit"),
+    # 0 reported an untrained autoencoder's scores as a result (a hostile tester's, exit 0).
+    "trainer.max_epochs": Bound(
+        int, low=1, nullable=True,
+        why="0 trains nothing and -1, Lightning's no limit, never ends a fit; model.refinement=closed_form skips a "
+        "calibration's refinement",
+    ),
     "optimizer.lr": Bound(float, low=0, strict=True),
     "eval.smoothing_window": Bound(int, low=1),
     "eval.closed_loop.runs_per_room": Bound(int, low=1),

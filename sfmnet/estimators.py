@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from sfmnet.api import as_matrix, compose_run_config
+from sfmnet.data.rows import IMPLAUSIBLE
 from sfmnet.data.table_columns import column_names
 from sfmnet.errors import SfmnetError
 
@@ -189,13 +190,21 @@ class CommandLearner:
 
 
 def finite_matrix(values: Any, name: str) -> np.ndarray:
-    """:func:`as_matrix`, refusing NaN and infinite entries (a learner has no use for a missing reading)."""
+    """:func:`as_matrix`, refusing NaN and infinite entries (a learner has no use for a missing reading) and values
+    beyond the command line's limit (a hostile tester's sensors times 1e160 overflowed the standardisation to inf and
+    scored 0.38 with every confidence 1)."""
     array = as_matrix(values, name)
     bad = np.argwhere(~np.isfinite(array))
     if len(bad):
         raise SfmnetError(
             f"{name} has {len(bad)} NaN or infinite values (first: row {bad[0][0]}, column {bad[0][1]}): "
             "drop those rows or fill them in"
+        )
+    huge = np.argwhere(np.abs(array) > IMPLAUSIBLE)
+    if len(huge):
+        raise SfmnetError(
+            f"{name} has {len(huge)} values beyond {IMPLAUSIBLE:.0e} (first: row {huge[0][0]}, column {huge[0][1]}): "
+            "a corrupt value or a unit slip; repair them or rescale the column"
         )
     return array
 

@@ -39,7 +39,7 @@ def test_every_experiment_passes_the_checks(experiment: str):
     "overrides",
     [
         ["data.magnitude=100"],  # a whole number where a number is declared
-        ["seed=4294967295", "threads=2", "trainer.max_epochs=0"],
+        ["seed=4294967295", "threads=2", "trainer.max_epochs=1"],
         ["model.metric_weight=1e-9", "model.rank=2", "ckpt_path=null", "threads=auto"],
         ["experiment=calibrate_csv", "data.path=/data/s.csv", "data.mass=1", "data.mirror_hint={row:3,axis:fz,sign:-1}"],
         ["experiment=calibrate_csv", "data.path=/data/s.csv", "data.load_columns=[fx,fy,fz,mx,my,mz]",

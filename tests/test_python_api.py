@@ -217,6 +217,7 @@ def test_calibrate_and_apply_read_a_table_by_its_column_names(tmp_path: Path):
     picked = sfmnet.calibrate(readings, magnitude=9.81, loads=loads, time=table[:, 0], channels=channels, axes=axes)
     np.testing.assert_allclose(picked.matrix.numpy(), reference.matrix.numpy(), rtol=0, atol=1e-9)
     expected = reference.apply(table[:, 1:7])
+    np.testing.assert_array_equal(reference.apply(table[::-1, 1:7]), expected[::-1])  # a reversed view, negative strides
     for calibration in (reference, named, picked):
         # Whatever the order of the table's columns, or of the calibration's, each load is in its axis's column.
         applied = calibration.apply(readings)[:, [calibration.axes.index(axis) for axis in axes]]
@@ -244,6 +245,9 @@ def test_command_learner_reads_a_table_by_its_column_names():
     # Numbers are names too (a DataFrame made from an array), and a name given twice is refused.
     numbered = sfmnet.CommandLearner(rank=2).fit(Frame(sensors, [0, 1, 2]), commands)
     np.testing.assert_array_equal(numbered.predict(Frame(sensors[:, [2, 0, 1]], [2, 0, 1])), numbered.predict(Frame(sensors, [0, 1, 2])))
+    # Beyond 1e15, as the command line refuses (times 1e160 overflowed the standardisation and scored 0.38).
+    with pytest.raises(sfmnet.SfmnetError, match=r"sensors has 1200 values beyond 1e\+15 \(first: row 0, column 0\)"):
+        sfmnet.CommandLearner(rank=2).fit(sensors * 1e160, commands)
     with pytest.raises(sfmnet.SfmnetError, match=r"sensors has columns named twice \(a\)"):
         sfmnet.CommandLearner(rank=2).fit(Frame(sensors, ["a", "a", "c"]), commands)
     # At a rank of the sensors' count every sensor vector fits: the confidence is 1, not rounding to rank by.
@@ -293,7 +297,8 @@ def test_mirror_hint_from_python_with_n_minus_one_known_loads(tmp_path: Path):
     "arguments, message",
     [
         ({"model.refinement": "bogus"}, r"model.refinement is 'bogus'"),
-        ({"trainer": {"max_epochs": -1}}, r"trainer.max_epochs is -1: give a whole number >= 0"),
+        ({"trainer": {"max_epochs": -1}}, r"trainer.max_epochs is -1: give a whole number >= 1"),
+        ({"trainer": {"max_epochs": 0}}, r"trainer.max_epochs is 0: give a whole number >= 1 \(0 trains nothing"),
         ({"magnitude": "abc"}, r"magnitude is 'abc': give a number"),
         ({"readings": np.ones((99, 6)) * 1j}, r"readings is complex"),
         ({"loads": None}, r"name the n load axes"),
