@@ -115,8 +115,9 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
     emptied: list[str] = []
     swept_groups: dict[str, list[str]] = {}
     plain_settings: dict[str, str] = {}
+    deleted: list[str] = []
     for item in overrides:
-        if item.startswith("-") or "=" not in item:
+        if item.startswith("-") or ("=" not in item and not item.startswith("~")):
             continue
         override = parse_override(item)
         key = override.key_or_group
@@ -134,6 +135,8 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
         else:
             values = [] if override.is_delete() else [override.get_value_element_as_str()]
             first_job.append(item)
+        if override.is_delete() and not override.is_hydra_override():
+            deleted.append(key)
         if override.is_hydra_override() or override.is_add() or override.is_force_add() or override.is_delete():
             continue
         if key in groups and override.package is None:
@@ -158,6 +161,12 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
             # A sweep over groups checks its plain settings against every job's config, below.
             if key not in keys and not (swept_groups and key in plain_settings):
                 raise unknown_key(key, keys)
+        for key in deleted:
+            if OmegaConf.select(config, key, default=MISSING_KEY) is MISSING_KEY:
+                parent, _, _ = key.rpartition(".")
+                siblings = OmegaConf.select(config, parent) if parent else config
+                there = f" ({parent} holds {', '.join(siblings) or 'nothing'})" if isinstance(siblings, DictConfig) else ""
+                raise SfmnetError(f"~{key} removes nothing: the config has no {key}{there}")
         for key in emptied:
             kept = OmegaConf.select(config, key)
             # Hydra merges a dict override into the dict it names, so an empty one removes nothing.
@@ -183,6 +192,9 @@ def check_overrides(overrides: list[str], config_dir: str, sweep: bool = False) 
     output = "hydra.sweep.dir" if sweep else "hydra.run.dir"
     check_writable_dir(Path(OmegaConf.select(job, output)), output)
     return [f"++{item}" if item in forced else item for item in overrides]
+
+
+MISSING_KEY = object()
 
 
 def unknown_key(key: str, keys: list[str] | set[str]) -> SfmnetError:

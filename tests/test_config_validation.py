@@ -14,6 +14,7 @@ import torch
 
 from sfmnet.calibration import Calibration
 from sfmnet.cli import config_dir
+from sfmnet.errors import SfmnetError
 from sfmnet.config_check import check_overrides
 from sfmnet.config_values import check_config
 from sfmnet.io import check_writable_dir, write_text_atomic
@@ -63,6 +64,14 @@ def test_values_of_the_right_kind_pass(overrides: list[str]):
 )
 def test_sweep_syntax_passes_with_m(overrides: list[str]):
     check_overrides(overrides, config_dir(), sweep=True)
+
+
+def test_removing_a_key_the_config_lacks_is_one_line():
+    """`~baselines.regression` was Hydra's raw error with exit 1 (a hostile tester's, after the README's example)."""
+    with pytest.raises(SfmnetError, match=r"^~baselines.regression removes nothing: the config has no baselines.regression "
+                       r"\(baselines holds linear_autoencoder, least_squares\)$"):
+        check_overrides(["experiment=wall_following", "~baselines.regression"], config_dir())
+    assert check_overrides(["experiment=wall_following", "~baselines.least_squares"], config_dir())[1] == "~baselines.least_squares"
 
 
 def test_a_key_every_swept_experiment_has_but_the_default_lacks_is_forced_for_hydra():
