@@ -16,3 +16,7 @@ class FitInterrupted(SfmnetError):
     """
 
     exit_status = 130
+
+    def __init__(self, message: str, stopped: str = "") -> None:
+        super().__init__(message)
+        self.stopped = stopped  # which fit stopped where, e.g. "LinearAutoencoder stopped in epoch 4"

@@ -15,11 +15,14 @@ from lightning.pytorch.callbacks import Callback
 
 
 class SignalAtEpoch(Callback):
-    def __init__(self, epoch: int, signal: str = "SIGKILL") -> None:
+    def __init__(self, epoch: int, signal: str = "SIGKILL", model: str | None = None) -> None:
         self.epoch = epoch
         self.signal = getattr(signals, signal)
+        self.model = model  # only in the fit of this model class (e.g. a baseline's), else in the first to get there
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self.model is not None and type(pl_module.model).__name__ != self.model:
+            return
         if trainer.current_epoch == self.epoch:
             if self.signal == signals.SIGINT:
                 # As in a terminal: a test run in the background inherits SIGINT ignored.

@@ -127,6 +127,26 @@ def test_ctrl_c_names_the_checkpoint_to_resume_from(tmp_path: Path):
     assert not (tmp_path / "stopped" / "calibration.json").exists()
 
 
+def test_ctrl_c_in_a_baseline_names_the_main_method_s_checkpoint(tmp_path: Path):
+    """A hostile tester's: a Ctrl-C in the autoencoder baseline named its own checkpoint, which ckpt_path (the main
+    method's) refused as "a checkpoint of another fit". The main method's resumes to the uninterrupted run."""
+    run = [*EIGENSPACE, "experiment=mkv_compare"]
+    stopped = sfmnet(tmp_path / "stopped", *run, *signal_at(2, "SIGINT"), "+callbacks.signal.model=LinearAutoencoder")
+    last = tmp_path / "stopped" / "checkpoints" / "eigenspace" / "last.ckpt"
+    assert stopped.returncode == 130 and stopped.stderr.strip().splitlines() == [
+        f"interrupted: LinearAutoencoder stopped in epoch 3, a baseline: resume with ckpt_path={last} (and a new "
+        "hydra.run.dir); the main method resumes at its end and the baselines are fitted again from their start"
+    ]
+    resumed = sfmnet(tmp_path / "resumed", *run, f"ckpt_path={last}")
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    whole = uninterrupted(tmp_path, run)
+    figures = [
+        {key: value for key, value in json.loads((folder / "metrics.json").read_text()).items() if not key.endswith("fit_seconds")}
+        for folder in (tmp_path / "resumed", whole)
+    ]
+    assert figures[0] == figures[1] and "linear_autoencoder/drive_accuracy" in figures[0]
+
+
 def test_missing_checkpoint_is_one_clear_error(tmp_path: Path):
     done = sfmnet(tmp_path / "run", *CALIBRATION, f"ckpt_path={tmp_path / 'nope.ckpt'}")
     assert done.returncode == 2

@@ -55,7 +55,7 @@ def fit(
     except SystemExit:
         # Lightning's answer to Ctrl-C: it tears the fit down and exits with status 1.
         if trainer.state.status is TrainerStatus.INTERRUPTED:
-            raise FitInterrupted(resume_hint(trainer)) from None
+            raise FitInterrupted(resume_hint(trainer), stopped_where(trainer)) from None
         raise
     except RuntimeError as error:
         if ckpt_path is not None and "state_dict" in str(error):
@@ -68,9 +68,13 @@ def fit(
     return trainer
 
 
+def stopped_where(trainer: L.Trainer) -> str:
+    return f"{type(trainer.lightning_module.model).__name__} stopped in epoch {trainer.current_epoch + 1}"
+
+
 def resume_hint(trainer: L.Trainer) -> str:
     """Where an interrupted fit stopped and the checkpoint to resume it from."""
-    stopped = f"{type(trainer.lightning_module.model).__name__} stopped in epoch {trainer.current_epoch + 1}"
+    stopped = stopped_where(trainer)
     checkpoint = trainer.checkpoint_callback
     last = Path(checkpoint.dirpath) / "last.ckpt" if checkpoint is not None and checkpoint.dirpath else None
     if last is None or not last.is_file():

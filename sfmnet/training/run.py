@@ -26,7 +26,7 @@ from omegaconf import DictConfig
 
 from sfmnet.cli import unwrapped_user_errors
 from sfmnet.config_values import check_config
-from sfmnet.errors import SfmnetError
+from sfmnet.errors import FitInterrupted, SfmnetError
 from sfmnet.io import check_writable_dir, write_json_atomic
 from sfmnet.models.contracts import Learner
 from sfmnet.tasks.base import FittedMethod, MethodResult, Task
@@ -123,7 +123,20 @@ def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | No
         # Resuming (ckpt_path) applies to the main method; baselines refit, as deterministically.
         ckpt_path = cfg.get("ckpt_path") if position == 0 else None
         settings = run_settings(cfg, name, cfg.model if position == 0 else cfg.baselines[name])
-        fits[name] = fit_method(name, model, cfg, datamodule, run_dir, task, ckpt_path, settings)
+        try:
+            fits[name] = fit_method(name, model, cfg, datamodule, run_dir, task, ckpt_path, settings)
+        except FitInterrupted as interrupted:
+            if position == 0:
+                raise
+            # A baseline's own checkpoint cannot be resumed: ckpt_path resumes the main method (a hostile tester's).
+            main_checkpoint = run_dir / "checkpoints" / next(iter(fits)) / "last.ckpt"
+            if not main_checkpoint.is_file():
+                raise
+            raise FitInterrupted(
+                f"{interrupted.stopped or name}, a baseline: resume with ckpt_path={main_checkpoint} (and a new "
+                "hydra.run.dir); the main method resumes at its end and the baselines are fitted again from their start",
+                interrupted.stopped,
+            ) from None
         results[name] = task.evaluate(fits[name], data)
     task.after_fits(data, results, run_dir)
     main = next(iter(results.values()))
