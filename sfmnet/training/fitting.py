@@ -5,19 +5,20 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import lightning as L
 import torch
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.trainer.states import TrainerStatus
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from sfmnet.errors import FitInterrupted, SfmnetError
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.models.linear_calibrator import LinearCalibrator
 from sfmnet.models.contracts import FitMode, Learner
-from sfmnet.training.learner_module import LearnerModule, OptimizerFactory
+from sfmnet.training.learner_module import FIT_SETTINGS_KEY, LearnerModule, OptimizerFactory
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +49,10 @@ def fit(
         if cfg.trainer.get("fast_dev_run"):
             # A dev run of a fit in passes: one block a pass, as many passes as a result needs.
             trainer_options.update(fast_dev_run=False, limit_train_batches=1, max_epochs=model.dev_run_passes)
-    module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer), true_matrix=true_matrix)
+    settings = fit_settings(cfg)
+    if ckpt_path is not None:
+        refuse_other_settings(ckpt_path, settings)
+    module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer), true_matrix=true_matrix, fit_settings=settings)
     trainer = build_trainer(cfg, **trainer_options)
     try:
         trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
@@ -66,6 +70,47 @@ def fit(
             ) from None
         raise
     return trainer
+
+
+# What a fit depends on, which a resumed run must share with the interrupted one (not the trainer's settings: a
+# resumed run may be given more epochs, or other devices).
+FIT_CONFIG_GROUPS = ("data", "model", "optimizer", "seed")
+
+
+def fit_settings(cfg: DictConfig) -> dict[str, Any]:
+    """``cfg``'s :data:`FIT_CONFIG_GROUPS`, flat (``data.test_fraction``: value) and resolved, file paths absolute."""
+    settings: dict[str, Any] = {}
+    for group in FIT_CONFIG_GROUPS:
+        if group not in cfg:
+            continue
+        value = cfg[group]
+        container = OmegaConf.to_container(value, resolve=True) if isinstance(value, DictConfig) else value
+        settings.update(flat_settings(container, group))
+    return {key: str(Path(value).resolve()) if key.endswith(".path") and isinstance(value, str) else value
+            for key, value in settings.items()}
+
+
+def flat_settings(value: Any, prefix: str) -> dict[str, Any]:
+    if isinstance(value, dict):
+        return {key: item for name, child in value.items() for key, item in flat_settings(child, f"{prefix}.{name}").items()}
+    return {prefix: value}
+
+
+def refuse_other_settings(ckpt_path: str, settings: dict[str, Any]) -> None:
+    """Refuse to resume from a checkpoint written under other settings (a hostile tester's resume with another
+    ``data.test_fraction``, whose shapes matched, mixed the old split's standardisation with the new one's, exit 0)."""
+    saved = torch.load(ckpt_path, map_location="cpu", weights_only=True).get(FIT_SETTINGS_KEY)
+    if saved is None:
+        return  # written before checkpoints kept their settings
+    differing = [key for key in dict.fromkeys([*saved, *settings]) if saved.get(key, "<unset>") != settings.get(key, "<unset>")]
+    if differing:
+        key = differing[0]
+        more = f" and {len(differing) - 1} more" if len(differing) > 1 else ""
+        raise SfmnetError(
+            f"ckpt_path {ckpt_path} was written with {key}={saved.get(key, '<unset>')!r}, this run has "
+            f"{settings.get(key, '<unset>')!r}{more}: resume with the interrupted run's settings (its .hydra/config.yaml), "
+            "or start afresh without ckpt_path"
+        )
 
 
 def stopped_where(trainer: L.Trainer) -> str:

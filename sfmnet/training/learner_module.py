@@ -11,6 +11,9 @@ import torch
 from sfmnet.errors import SfmnetError
 from sfmnet.models.contracts import FitMode, Learner
 
+# Where a checkpoint keeps the settings its fit depends on.
+FIT_SETTINGS_KEY = "sfmnet_fit_settings"
+
 OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimizer]
 
 
@@ -31,12 +34,21 @@ class LearnerModule(L.LightningModule):
         true_matrix: ``n x p``, the simulated truth to log the matrix error against, or None.
     """
 
-    def __init__(self, model: Learner, optimizer: OptimizerFactory, true_matrix: torch.Tensor | None = None) -> None:
+    def __init__(
+        self, model: Learner, optimizer: OptimizerFactory, true_matrix: torch.Tensor | None = None,
+        fit_settings: dict[str, Any] | None = None,
+    ) -> None:
         super().__init__()
         self.model = model
         self.optimizer_factory = optimizer
         self.true_matrix = true_matrix
+        self.fit_settings = fit_settings
         self.read_mode()
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        # The settings the fit depends on, so that a resume under other settings is refused (training/fitting.py).
+        if self.fit_settings is not None:
+            checkpoint[FIT_SETTINGS_KEY] = self.fit_settings
 
     @property
     def recording(self) -> Any:
