@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
 import sys
 import traceback
 from collections.abc import Callable, Iterator
@@ -115,6 +116,33 @@ def interrupted_outside_fit(run_dir: Path | None) -> str:
 
 # The sweep's jobs that failed, by job number: the sweep goes on, and exits with status 2 at the end.
 FAILED_JOBS: list[str] = []
+# The sweep's directory, once its first job has started (for a Ctrl-C between jobs).
+SWEEP_DIRS: list[Path] = []
+
+
+def stop_on_interrupt(hydra_task: Callable[[], None]) -> None:
+    """Run Hydra's ``hydra_task``; a Ctrl-C (or SIGTERM) outside every job, between a sweep's jobs or before the first,
+    is one line and exit status 130 (it was a traceback of Hydra's launcher, a hostile tester's)."""
+    try:
+        hydra_task()
+    except KeyboardInterrupt:
+        if debug_enabled():
+            raise
+        from sfmnet.training.run_directory import release_run_dir
+
+        if SWEEP_DIRS:
+            release_run_dir(SWEEP_DIRS[-1])
+            where = f"between a sweep's jobs: the finished jobs are in {SWEEP_DIRS[-1]}"
+        else:
+            where = "before a run started"
+        print(f"interrupted: stopped {where}; run the command again for the rest", file=sys.stderr)
+        sys.exit(FitInterrupted.exit_status)
+
+
+def terminate_as_interrupt(signum: int, frame: object) -> None:
+    """SIGTERM (a scheduler's, ``kill``) stops a run as Ctrl-C does: one line, the claim released, exit status 130
+    (outside a fit it ended the process silently, status -15)."""
+    raise KeyboardInterrupt
 
 
 def run_sweep_job(action: Callable[[], object], job_dir: Path) -> None:
@@ -199,6 +227,7 @@ def train_command() -> None:
                 if not is_worker():
                     release_run_dir(run_dir)
         else:
+            SWEEP_DIRS.append(Path(HydraConfig.get().sweep.dir))
             try:
                 # A sweep's job keeps its directory beside the others, with its error.
                 run_sweep_job(lambda: train(cfg, run_dir), run_dir)
@@ -207,7 +236,7 @@ def train_command() -> None:
                 release_run_dir(Path(HydraConfig.get().sweep.dir))
                 raise
 
-    task()
+    stop_on_interrupt(task)
     if FAILED_JOBS:
         sys.exit(2)
 
@@ -270,6 +299,8 @@ def main(argv: list[str] | None = None) -> None:
         if command not in COMMANDS:
             print(f"error: unknown command '{command}': use one of {', '.join(COMMANDS)} (python -m sfmnet --help)", file=sys.stderr)
             sys.exit(2)
+    if os.environ.get("LOCAL_RANK", "0") == "0":
+        signal.signal(signal.SIGTERM, terminate_as_interrupt)
     if command == "train":
         args = [quote_plain_value(arg) for arg in args]
         args = exit_on_user_error(lambda: check_train_arguments(args))

@@ -174,6 +174,37 @@ def test_a_sweep_over_experiments_is_summarised_in_one_directory(tmp_path: Path)
     assert shared_sweep_dir(["experiment=glob(finger*)"])[0].startswith("hydra.sweep.dir=runs/multirun/experiments/")
 
 
+def test_ctrl_c_or_sigterm_between_a_sweeps_jobs_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch):
+    """A hostile tester's Ctrl-C between two jobs was a traceback of Hydra's launcher (status -2), and SIGTERM there
+    ended the sweep silently (-15); now both are one line, exit 130, the sweep directory's claim released."""
+    import signal
+
+    from sfmnet import cli
+    from sfmnet.training.run_directory import LOCK_NAME
+
+    def between_jobs() -> None:
+        raise KeyboardInterrupt
+
+    (tmp_path / LOCK_NAME).write_text("claimed")
+    monkeypatch.setattr(cli, "SWEEP_DIRS", [tmp_path])
+    with pytest.raises(SystemExit) as stopped:
+        cli.stop_on_interrupt(between_jobs)
+    assert stopped.value.code == 130 and not (tmp_path / LOCK_NAME).exists()
+    assert capsys.readouterr().err == (
+        f"interrupted: stopped between a sweep's jobs: the finished jobs are in {tmp_path}; run the command again for the rest\n"
+    )
+    # The command line turns SIGTERM into that same interruption.
+    before = signal.getsignal(signal.SIGTERM)
+    try:
+        with pytest.raises(SystemExit):
+            cli.main(["train", "notasetting"])
+        assert signal.getsignal(signal.SIGTERM) is cli.terminate_as_interrupt
+        with pytest.raises(KeyboardInterrupt):
+            cli.terminate_as_interrupt(signal.SIGTERM, None)
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
 def test_ctrl_c_after_the_fit_is_one_line_naming_the_checkpoint(tmp_path: Path, capsys: pytest.CaptureFixture):
     """A Ctrl-C while the results are written (after the fit's own handler) was a traceback of 100 lines."""
     from sfmnet.cli import exit_on_user_error
