@@ -56,7 +56,7 @@ def force_error(calibration: Calibration, readings: torch.Tensor, loads: torch.T
     return float((calibration.apply(readings) - loads).pow(2).sum(dim=1).mean().sqrt())
 
 
-def run(seed: int, law: str, noise: float, folder: Path) -> dict[str, object]:
+def run(seed: int, law: str, noise: float, folder: Path, detection: list[str]) -> dict[str, object]:
     generator = torch.Generator().manual_seed(seed)
     sensor = stream_sensor(8, MASS * STANDARD_GRAVITY, noise_fraction=noise, offset_scale=0.2, generator=generator)
     recording = simulate_stream(sensor, MASS, orientation=law, generator=generator)
@@ -65,7 +65,7 @@ def run(seed: int, law: str, noise: float, folder: Path) -> dict[str, object]:
     write_stream_csv(recording, stream)
     write_stream_csv(recording, static_only, rows=recording.static)
     runs = {
-        "a": calibrate(stream, folder / f"a-{law}-{seed}"),
+        "a": calibrate(stream, folder / f"a-{law}-{seed}", *detection),
         "b": calibrate(stream, folder / f"b-{law}-{seed}", "data.static_intervals=false"),
         "c": calibrate(static_only, folder / f"c-{law}-{seed}", "data.static_intervals=false"),
     }
@@ -89,12 +89,13 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--laws", nargs="+", default=["uniform", "below"])
     parser.add_argument("--noise", type=float, default=0.0005, help="noise std over the signal (1 / SNR)")
+    parser.add_argument("--detection", nargs="*", default=[], help="overrides for (a), e.g. data.static.threshold=2")
     args = parser.parse_args()
     print(f"{'law':8} {'seed':>4} {'(a) detected':>13} {'(b) every row':>14} {'(c) true static':>16} {'a/c':>6} {'found':>7} {'ends':>5} {'rows kept':>12} {'trusted':>8}")
     with tempfile.TemporaryDirectory() as folder:
         for law in args.laws:
             for seed in args.seeds:
-                r = run(seed, law, args.noise, Path(folder))
+                r = run(seed, law, args.noise, Path(folder), args.detection)
                 print(
                     f"{r['law']:8} {r['seed']:>4} {r['a']:>11.4f} N {r['b']:>12.4f} N {r['c']:>14.4f} N {r['ratio']:>6.3f} "
                     f"{r['found']:>7} {r['ends']:>5} {r['kept']:>12} {r['trusted']:>8}",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -183,6 +184,30 @@ def test_a_mirror_hint_below_blank_lines_names_its_line(tmp_path: Path, experime
         warning.startswith(f"data.mirror_hint.row 5 is line 9 of {session}: 2 blank or comment lines above it are not rows")
         for warning in warnings[5]
     ), warnings[5]
+
+
+@pytest.mark.parametrize("experiment", ["calibrate_csv", "calibrate_stream"])
+def test_channels_in_units_orders_of_magnitude_apart_are_pointed_out(tmp_path: Path, experiment: str):
+    """A hostile tester's channels in units 1e5, 1, 1e-3 and 50 apart: fitted in raw units, 5x less accurate than in
+    one unit, and disowned by checks that blamed motion and bias."""
+
+    def rescale(rows: list) -> None:
+        for row in rows[1:]:
+            row[1], row[3] = f"{1e5 * float(row[1]):.9g}", f"{1e-3 * float(row[3]):.9g}"
+
+    warnings = {}
+    for name, edit in (("plain", None), ("scaled", rescale)):
+        session = tmp_path / f"{name}.csv"
+        write_session(session, edit=edit)
+        overrides = [f"experiment={experiment}", f"data.path={session}", "data.magnitude=9.81", "data.time_column=time"]
+        datamodule = instantiate(compose_config(overrides).data)
+        datamodule.setup()
+        warnings[name] = datamodule.data.warnings
+    assert not any("spreads differ" in warning for warning in warnings["plain"])
+    assert any(
+        re.match(r"the channels' spreads differ [\d.e+]+x \(channel 's0' [\d.e+]+, 's2' [\d.e+-]+ raw units\)", warning)
+        for warning in warnings["scaled"]
+    ), warnings["scaled"]
 
 
 def test_apply_refuses_other_channels_and_existing_output(tmp_path: Path):

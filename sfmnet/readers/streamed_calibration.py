@@ -7,7 +7,8 @@ import numpy as np
 import torch
 
 from sfmnet.readers.csv_calibration import (
-    calibration_magnitude, hint_row_warnings, load_axes, mirror_hint_fields, monotonic_channel_warnings,
+    calibration_magnitude, channel_scale_warnings, hint_row_warnings, load_axes, mirror_hint_fields,
+    monotonic_channel_warnings,
 )
 from sfmnet.data.recording import CalibrationData, load_unit_for
 from sfmnet.readers.clock_times import clock_seconds
@@ -118,6 +119,7 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         if self.mirror_hint is not None:
             self.read_mirror_hint(recording)
         first = min(recording.rows, SHIFT_ROWS)
+        sample = np.asarray(mapped_rows(layout, 0, first)[:, recording.channel_index])
         return CalibrationData(
             recordings={recording.recording: recording}, channels=channels, axes=self.axes, load_unit=self.load_unit,
             static_intervals=detection,
@@ -128,9 +130,9 @@ class StreamedCalibrationDataModule(RowFileDataModule):
             ],
             warnings=[
                 *monotonic_channel_warnings(
-                    np.asarray(mapped_rows(layout, 0, first)[:, recording.channel_index]), channels,
-                    "the file's rows" if first == recording.rows else f"the first {first} rows",
+                    sample, channels, "the file's rows" if first == recording.rows else f"the first {first} rows"
                 ),
+                *channel_scale_warnings(sample, channels),
                 *self.hint_line_warnings(),
             ],
         )
