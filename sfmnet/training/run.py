@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import logging
 import os
+import shlex
 import time
 import warnings
 from collections.abc import Callable
@@ -153,7 +154,8 @@ def train(cfg: DictConfig, run_dir: Path, datamodule: L.LightningDataModule | No
         log.info(line)
     if cfg.get("report"):
         log.info(instantiate(cfg.report)({n: r.metrics for n, r in results.items()}, data, run_dir))
-    log.info(f"inspect: tensorboard --logdir {run_dir}")
+    # Quoted where the path has spaces or brackets, so that the line pastes into a shell as it is.
+    log.info(f"inspect: tensorboard --logdir {shlex.quote(str(run_dir))}")
     return metrics
 
 
