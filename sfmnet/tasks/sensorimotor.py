@@ -200,9 +200,11 @@ def headline(name: str, metrics: dict[str, float], data: SensorimotorData) -> st
             )
         parts.append(part)
     auroc = metrics["confidence_auroc"]
-    # Undefined where every held-out command was right (or every one wrong): nothing to rank.
+    # Undefined where every held-out command was right (or every one wrong), or every row has one confidence (a method
+    # with no confidence measure, such as least squares): nothing to rank.
     parts.append(
-        f"confidence AUROC {auroc:.2f}" if math.isfinite(auroc) else "confidence AUROC undefined (no wrong and right commands, or no spread of confidence, to rank)"
+        f"confidence AUROC {auroc:.2f}" if math.isfinite(auroc) else "confidence AUROC undefined (no wrong and right "
+        "commands to rank, or one confidence on every row, as a method without a confidence measure gives)"
     )
     parts.append(f"subspace angle to PCA {metrics['subspace_angle_deg']:.2f} deg")
     return f"  {name}: " + "; ".join(parts)
