@@ -16,6 +16,7 @@ from sfmnet.calibration import Calibration
 from sfmnet.eval.goodness_of_fit import POSE_MISFIT_Z
 from sfmnet.simulators.simulated_stream import ContinuousRecording, simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
+from sfmnet.preprocessing import static_intervals
 from sfmnet.preprocessing.static_intervals import find_static_intervals, intervals_of, noise_correlation
 from sfmnet.training.run import train
 from sfmnet.training.static_report import describe
@@ -322,7 +323,7 @@ def test_one_corrupt_cell_under_the_far_cell_limit_leaves_the_other_intervals():
 
 
 
-def test_the_slow_ends_of_moves_are_trimmed_off_the_intervals(tmp_path: Path):
+def test_the_slow_ends_of_moves_are_trimmed_off_the_intervals(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     """At an SNR of 100 the windowed variance missed the slow start and end of minimum-jerk moves: intervals ran up to
     62 rows into them, and the goodness of fit disowned the bars of 6 of 8 such simulated sessions whose error was the
     true static rows' (bench/continuous_recording.py --noise 0.01). The ends that drift from the interval's middle are
@@ -335,6 +336,11 @@ def test_the_slow_ends_of_moves_are_trimmed_off_the_intervals(tmp_path: Path):
     true_rows = int(recording.static.sum())
     # A few slow rows of motion stay (their readings within the noise), far fewer than the moves' 30 ends.
     assert moving.sum() < 0.04 * true_rows and detected.mask.sum() > 0.97 * true_rows, (moving.sum(), detected.mask.sum())
+    # Judged against a few central rows (as a long interval of a streamed session is, its memory bounded), the same.
+    monkeypatch.setattr(static_intervals, "DRIFT_MIDDLE_ROWS", 50)
+    bounded = find_static_intervals(recording.readings.numpy(), recording.time.numpy()).mask
+    assert (bounded & ~recording.static.numpy()).sum() < 0.04 * true_rows and bounded.sum() > 0.97 * true_rows
+    monkeypatch.undo()
     write_stream_csv(recording, tmp_path / "stream.csv")
     calibrate(tmp_path / "stream.csv", tmp_path / "run")
     assert json.loads((tmp_path / "run" / "calibration.json").read_text())["error_bars_trustworthy"]

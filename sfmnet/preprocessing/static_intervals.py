@@ -49,6 +49,7 @@ INDEPENDENT_RATIO = 0.5
 DEFAULT_WINDOW = {True: 0.5, False: 25}   # seconds with time, rows without
 DEFAULT_THRESHOLD = 3.0
 DRIFT_RATIO = 2.0         # an interval's end drifted where its rows stray this many times as far as its middle's
+DRIFT_MIDDLE_ROWS = 20_000  # an interval's central rows its ends are judged against, at most
 DEFAULT_NOISE_QUANTILE = 0.1
 GAP_PERIODS = 5.0         # a time step over this many ticks splits the stream
 JITTER_PERIODS = 2.0      # a time step back by at most this many ticks is jitter, not disorder
@@ -557,7 +558,8 @@ def trim_drifting_ends(readings: Rows, intervals: np.ndarray, floor: np.ndarray,
     its moves, and the goodness of fit disowned the bars. Each row near an end is scored by its squared deviation from
     the middle's mean, over the noise floor and averaged over channels, smoothed over ``half / 2`` rows; ends are cut
     while that score exceeds :data:`DRIFT_RATIO` times the middle rows' own (which carries any slow noise, tremor, of
-    the hold itself), by at most a quarter of the interval at each end and ``half`` rows (the window's overhang).
+    the hold itself), by at most a quarter of the interval and one window at each end. An interval longer than
+    :data:`DRIFT_MIDDLE_ROWS` is judged against its central rows alone, so memory stays bounded in a streamed session.
 
     Args:
         readings: ``f x p``; floor: ``p`` noise floors (0: a channel left out); half: the window's half-width, rows.
@@ -573,17 +575,30 @@ def trim_drifting_ends(readings: Rows, intervals: np.ndarray, floor: np.ndarray,
         if reach < smooth or length < 4 * smooth:
             trimmed.append((first, stop))
             continue
-        rows = np.asarray(readings[first:stop], dtype=np.float64)[:, used] / floor[used]
-        middle = rows[reach : length - reach]
-        score = ((rows - middle.mean(axis=0)) ** 2).mean(axis=1)
-        # A moving mean that takes only the rows there are at the ends (zeros beyond them would hide a drifted end).
-        kernel = np.ones(smooth)
-        smoothed = np.convolve(score, kernel, mode="same") / np.convolve(np.ones(length), kernel, mode="same")
-        level = DRIFT_RATIO * float(np.median(smoothed[reach : length - reach]))
-        head = next((r for r in range(reach) if smoothed[r] <= level), reach)
-        tail = next((r for r in range(reach) if smoothed[length - 1 - r] <= level), reach)
+        if length <= DRIFT_MIDDLE_ROWS + 2 * reach:
+            parts = [(first, stop)]
+        else:
+            centre = (first + stop) // 2
+            ends = reach + smooth
+            parts = [(first, first + ends), (centre - DRIFT_MIDDLE_ROWS // 2, centre + DRIFT_MIDDLE_ROWS // 2), (stop - ends, stop)]
+        blocks = [np.asarray(readings[a:b], dtype=np.float64)[:, used] / floor[used] for a, b in parts]
+        whole = blocks[0] if len(blocks) == 1 else None
+        middle = whole[reach : length - reach] if whole is not None else blocks[1]
+        mean = middle.mean(axis=0)
+        smoothed = [moving_mean(((block - mean) ** 2).mean(axis=1), smooth) for block in blocks]
+        level = DRIFT_RATIO * float(np.median(smoothed[0][reach : length - reach] if whole is not None else smoothed[1]))
+        head_scores, tail_scores = smoothed[0], smoothed[-1]
+        head = next((r for r in range(reach) if head_scores[r] <= level), reach)
+        tail = next((r for r in range(reach) if tail_scores[len(tail_scores) - 1 - r] <= level), reach)
         trimmed.append((first + head, stop - tail))
     return np.array(trimmed, dtype=np.int64).reshape(-1, 2)
+
+
+def moving_mean(values: np.ndarray, width: int) -> np.ndarray:
+    """Centred moving mean over ``width`` rows, of the rows there are at the ends (zeros beyond them would hide a
+    drifted end)."""
+    kernel = np.ones(width)
+    return np.convolve(values, kernel, mode="same") / np.convolve(np.ones(len(values)), kernel, mode="same")
 
 
 def static_runs(quiet: np.ndarray, min_rows: int, starts: np.ndarray, window_rows: int) -> np.ndarray:
