@@ -164,6 +164,11 @@ def test_a_mirror_hint_picks_the_image_only_where_the_images_differ_in_sign(axis
             frame_rotation(known @ rotation.T, known, hint_load @ rotation.T, named)
     else:
         assert torch.allclose(frame_rotation(known @ rotation.T, known, hint_load @ rotation.T, hint), rotation, atol=1e-12)
+        # A row loaded within the known loads' plane (a hostile tester's, in a known pose's hold): its fz is noise.
+        in_plane = torch.nn.functional.normalize(torch.tensor([[0.9, 0.4, 0.03]], dtype=torch.float64)) * 9.81
+        with pytest.raises(SfmnetError, match=r"cannot pick the mirror image: its row's load lies 1.7 degrees out of the known "
+                           r"loads' span, where noise sets its sign on axis 2 \(0-based\)"):
+            frame_rotation(known @ rotation.T, known, in_plane @ rotation.T, hint)
 
 
 def test_least_squares_refuses_loads_that_do_not_span():

@@ -1330,7 +1330,8 @@ def goodness_of_fit(
     if count > OUTLIER_ALLOWANCE + 10 * 1e-4 * len(residuals) and not robust:
         # Rows already grouped into static intervals or poses: motion the detector let in, not a missing time column.
         static = (
-            "tighten the static intervals (a lower data.static.threshold, a longer data.static.min_duration) if a time "
+            "tighten the static intervals (a lower data.static.threshold, a longer data.static.min_duration, or "
+            "data.static.trim_ends=true where they lie at the intervals' ends and the holds do not ring) if a time "
             "column found them"
             if groups is not None and not poses_found
             else "fit only the static intervals (a time column)"

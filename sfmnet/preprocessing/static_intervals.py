@@ -4,9 +4,9 @@ A logger that runs on while a robot or a hand carries the sensor from pose to po
 inertial loads between the poses (``|F| != m g``). Following IMU calibration tools (IMU-TK,
 Tedaldi et al., ICRA 2014), a row is static when the variance of a moving window centred on
 it, relative to each channel's noise floor and averaged over the channels, is below a
-threshold; runs of static rows shorter than a minimum are dropped, and each run's ends are cut where its readings
-have drifted from its middle's (a move that starts or ends slowly shifts the mean before the variance notices). The
-noise floor comes from
+threshold; runs of static rows shorter than a minimum are dropped, and on request (``trim_ends``) each run's ends
+are cut where its readings have drifted from its middle's (a move that starts or ends slowly shifts the mean before
+the variance notices). The noise floor comes from
 the recording itself (a low quantile of each channel's windowed standard deviation), so no
 rest period is needed: only that at least ``noise_quantile`` of the rows are static.
 
@@ -191,6 +191,7 @@ def find_static_intervals(
     noise_quantile: float = DEFAULT_NOISE_QUANTILE,
     chunk_rows: int = CHUNK_ROWS,
     where: Callable[[int], str] = data_row,
+    trim_ends: bool = False,
 ) -> StaticIntervals:
     """Find the static intervals of a recording (module docstring).
 
@@ -207,6 +208,9 @@ def find_static_intervals(
             the rows must be static.
         chunk_rows: rows read at a time.
         where: a row's place in the file for messages, e.g. ``line 17 of session.csv``.
+        trim_ends: cut each interval's drifted ends (:func:`trim_drifting_ends`). Off by default: it also cuts the
+            start of a hold that rings after a move, the very rows that show the ringing to the goodness of fit,
+            while the ringing left in the hold still biases its mean (a hostile tester's: 4.2x its bars, trusted).
 
     Returns:
         :class:`StaticIntervals`.
@@ -268,7 +272,9 @@ def find_static_intervals(
     used = floor > 0
     for first, variance, _, _ in moving_variances(readings, half, chunk_rows, starts):
         statistic[first : first + len(variance)] = (variance[:, used] / floor[used] ** 2).mean(axis=1)
-    intervals = trim_drifting_ends(readings, static_runs(statistic < threshold, min_rows, starts, window_rows), floor, half)
+    intervals = static_runs(statistic < threshold, min_rows, starts, window_rows)
+    if trim_ends:
+        intervals = trim_drifting_ends(readings, intervals, floor, half)
     mask = np.zeros(f, dtype=bool)
     for first, stop in intervals:
         mask[first:stop] = True

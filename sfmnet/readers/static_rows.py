@@ -25,7 +25,7 @@ from sfmnet.preprocessing.static_intervals import (
 
 # d: a spreadsheet's serial dates (Excel, LibreOffice) or MATLAB's datenum, days since an epoch.
 TIME_UNITS = {"d": 86_400.0, "h": 3_600.0, "min": 60.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-STATIC_KEYS = {"window", "min_duration", "threshold", "noise_quantile"}
+STATIC_KEYS = {"window", "min_duration", "threshold", "noise_quantile", "trim_ends"}
 
 
 @dataclass(frozen=True)
@@ -37,12 +37,13 @@ class StaticSettings:
     threshold: float
     noise_quantile: float
     time_scale: float
+    trim_ends: bool = False
 
     def detect(self, readings: Rows, time: Rows | None, where: Callable[[int], str]) -> StaticIntervals:
         """The static intervals; ``where`` names a row's place in the file for messages."""
         return find_static_intervals(
             readings, time, window=self.window, min_duration=self.min_duration,
-            threshold=self.threshold, noise_quantile=self.noise_quantile, where=where,
+            threshold=self.threshold, noise_quantile=self.noise_quantile, where=where, trim_ends=self.trim_ends,
         )
 
 
@@ -62,7 +63,10 @@ def static_settings(enabled: bool | None, time_column: str | None, time_unit: st
         threshold=float(DEFAULT_THRESHOLD if given.get("threshold") is None else given["threshold"]),
         noise_quantile=float(DEFAULT_NOISE_QUANTILE if given.get("noise_quantile") is None else given["noise_quantile"]),
         time_scale=TIME_UNITS[time_unit],
+        trim_ends=given.get("trim_ends") or False,
     )
+    if not isinstance(settings.trim_ends, bool):
+        raise SfmnetError(f"data.static.trim_ends is {settings.trim_ends!r}: give true or false")
     for name in ("window", "min_duration", "threshold"):
         value = getattr(settings, name)
         if value is not None and not value > 0:
