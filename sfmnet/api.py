@@ -112,9 +112,13 @@ def calibrate(
     channels = list(channels) if channels is not None else [f"z{i}" for i in range(p)]
     axes = list(axes) if axes is not None else default_axis_names(n)
     if len(channels) != p or len(axes) != n or len({*channels, *axes, TIME_COLUMN, POSE_COLUMN}) != p + n + 2:
+        names = [*channels, *axes, TIME_COLUMN, POSE_COLUMN]
+        shared = sorted({str(name) for name in names if names.count(name) > 1})
+        # A table made from arrays names channels and axes alike (0, 1, 2); say which names clash.
+        clash = f" ({', '.join(repr(name) for name in shared)} named twice)" if shared else ""
         raise SfmnetError(
-            f"give {p} distinct channel names and {n} distinct axis names (not '{TIME_COLUMN}' or '{POSE_COLUMN}'), "
-            f"not channels={channels} and axes={axes}"
+            f"give {p} distinct channel names and {n} distinct axis names (not '{TIME_COLUMN}' or '{POSE_COLUMN}', "
+            f"which name the time and poses arguments), not channels={channels} and axes={axes}{clash}"
         )
     columns = {name: readings[:, i] for i, name in enumerate(channels)}
     columns.update({name: known[:, i] for i, name in enumerate(axes)})
@@ -188,9 +192,14 @@ def as_number(value: Any, name: str) -> float:
 def named_columns(values: Any, names: Sequence[str] | int | None, name: str, names_key: str) -> tuple[Any, Any]:
     """A table's columns picked by ``names`` (None or a count: all of them, named as the table does); an array as it
     is, with ``names``."""
+    if isinstance(names, str):
+        raise SfmnetError(f"{names_key}={names!r} is one string: give a list of names, e.g. {names_key}=[{names!r}, ...]")
     columns = column_names(values, name)
     if columns is None:
         return values, names
+    if isinstance(names, int) and names != len(columns):
+        raise SfmnetError(f"{names_key}={names} but {name} has {len(columns)} columns: leave {names_key} out, or pick "
+                          f"the columns by name, {names_key}=[...]")
     if names is None or isinstance(names, int):
         return values, [str(column) for column in columns]
     return columns_by_name(values, list(names), name, f"the {names_key} asked for"), names
