@@ -18,7 +18,7 @@ from sfmnet.errors import FitInterrupted, SfmnetError
 from sfmnet.data.recording import CalibrationRecording
 from sfmnet.models.linear_calibrator import LinearCalibrator
 from sfmnet.models.contracts import FitMode, Learner
-from sfmnet.training.learner_module import FIT_SETTINGS_KEY, LearnerModule, OptimizerFactory
+from sfmnet.training.learner_module import LearnerModule, OptimizerFactory
 
 log = logging.getLogger(__name__)
 
@@ -49,10 +49,9 @@ def fit(
         if cfg.trainer.get("fast_dev_run"):
             # A dev run of a fit in passes: one block a pass, as many passes as a result needs.
             trainer_options.update(fast_dev_run=False, limit_train_batches=1, max_epochs=model.dev_run_passes)
-    settings = fit_settings(cfg)
-    if ckpt_path is not None:
-        refuse_other_settings(ckpt_path, settings)
-    module = LearnerModule(model=model, optimizer=instantiate(cfg.optimizer), true_matrix=true_matrix, fit_settings=settings)
+    module = LearnerModule(
+        model=model, optimizer=instantiate(cfg.optimizer), true_matrix=true_matrix, fit_settings=fit_settings(cfg)
+    )
     trainer = build_trainer(cfg, **trainer_options)
     try:
         trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
@@ -94,23 +93,6 @@ def flat_settings(value: Any, prefix: str) -> dict[str, Any]:
     if isinstance(value, dict):
         return {key: item for name, child in value.items() for key, item in flat_settings(child, f"{prefix}.{name}").items()}
     return {prefix: value}
-
-
-def refuse_other_settings(ckpt_path: str, settings: dict[str, Any]) -> None:
-    """Refuse to resume from a checkpoint written under other settings (a hostile tester's resume with another
-    ``data.test_fraction``, whose shapes matched, mixed the old split's standardisation with the new one's, exit 0)."""
-    saved = torch.load(ckpt_path, map_location="cpu", weights_only=True).get(FIT_SETTINGS_KEY)
-    if saved is None:
-        return  # written before checkpoints kept their settings
-    differing = [key for key in dict.fromkeys([*saved, *settings]) if saved.get(key, "<unset>") != settings.get(key, "<unset>")]
-    if differing:
-        key = differing[0]
-        more = f" and {len(differing) - 1} more" if len(differing) > 1 else ""
-        raise SfmnetError(
-            f"ckpt_path {ckpt_path} was written with {key}={saved.get(key, '<unset>')!r}, this run has "
-            f"{settings.get(key, '<unset>')!r}{more}: resume with the interrupted run's settings (its .hydra/config.yaml), "
-            "or start afresh without ckpt_path"
-        )
 
 
 def stopped_where(trainer: L.Trainer) -> str:

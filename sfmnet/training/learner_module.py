@@ -13,6 +13,7 @@ from sfmnet.models.contracts import FitMode, Learner
 
 # Where a checkpoint keeps the settings its fit depends on.
 FIT_SETTINGS_KEY = "sfmnet_fit_settings"
+UNSET = "<unset>"
 
 OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimizer]
 
@@ -46,9 +47,27 @@ class LearnerModule(L.LightningModule):
         self.read_mode()
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        # The settings the fit depends on, so that a resume under other settings is refused (training/fitting.py).
+        # The settings the fit depends on, so that a resume under other settings is refused (on_load_checkpoint).
         if self.fit_settings is not None:
             checkpoint[FIT_SETTINGS_KEY] = self.fit_settings
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """Refuse to resume under other settings (a hostile tester's resume with another ``data.test_fraction``, whose
+        shapes matched, mixed the old split's standardisation with the new one's, exit 0); Lightning calls this before
+        it loads the weights. A checkpoint written before checkpoints kept their settings is taken as it is."""
+        saved = checkpoint.get(FIT_SETTINGS_KEY)
+        if saved is None or self.fit_settings is None:
+            return
+        keys = dict.fromkeys([*saved, *self.fit_settings])
+        differing = [key for key in keys if saved.get(key, UNSET) != self.fit_settings.get(key, UNSET)]
+        if differing:
+            key = differing[0]
+            more = f" and {len(differing) - 1} more" if len(differing) > 1 else ""
+            raise SfmnetError(
+                f"ckpt_path {self.trainer.ckpt_path} was written with {key}={saved.get(key, UNSET)!r}, this run has "
+                f"{self.fit_settings.get(key, UNSET)!r}{more}: resume with the interrupted run's settings (its "
+                ".hydra/config.yaml), or start afresh without ckpt_path"
+            )
 
     @property
     def recording(self) -> Any:
