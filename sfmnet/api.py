@@ -21,7 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from sfmnet.calibration import Calibration
-from sfmnet.data.table_columns import column_names, columns_by_name
+from sfmnet.data.table_columns import column_names, columns_by_name, require_same_row_labels
 from sfmnet.errors import SfmnetError
 
 # Config groups chosen by name (``model="least_squares"``), as on the command line.
@@ -56,6 +56,8 @@ def calibrate(
     Args:
         readings: ``(f, p)`` raw readings (numpy, torch or nested lists), one row per sample, ``p >= n``; or a
             table (a pandas DataFrame), read by column name: its columns are the channels, or ``channels`` picks them.
+            The other arguments' rows pair with these by position; tables or series whose row labels (index) differ
+            from these are refused.
         magnitude: the load's magnitude in load units (e.g. ``9.81`` N for 1 kg, or
             ``9.81`` m/s^2 for an accelerometer); or give ``**{"data.mass": kg}``.
         loads: ``(f, n)`` known loads, NaN on the rows whose load is unknown (at least ``n - 1``
@@ -85,6 +87,7 @@ def calibrate(
     Raises:
         SfmnetError: bad input, one line naming the problem and what to do.
     """
+    require_same_row_labels({"readings": readings, "loads": loads, "time": time, "poses": poses})
     readings, channels = named_columns(readings, channels, "readings", "channels")
     if loads is not None:
         loads, axes = named_columns(loads, axes, "loads", "axes")

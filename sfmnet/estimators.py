@@ -16,7 +16,7 @@ import torch
 
 from sfmnet.api import as_matrix, compose_run_config
 from sfmnet.data.rows import IMPLAUSIBLE
-from sfmnet.data.table_columns import column_names
+from sfmnet.data.table_columns import column_names, require_same_row_labels
 from sfmnet.errors import SfmnetError
 
 LEARNERS = {"eigenspace": "eigenspace", "autoencoder": "linear_autoencoder"}
@@ -95,6 +95,7 @@ class CommandLearner:
 
         if self.learner not in LEARNERS:
             raise SfmnetError(f"learner is '{self.learner}': use one of {', '.join(LEARNERS)}")
+        require_same_row_labels({"sensors": sensors, "commands": commands})
         names = column_names(sensors, "sensors")
         readings = finite_matrix(sensors, "sensors")
         labels = np.asarray(commands, dtype=object)

@@ -187,17 +187,42 @@ def test_command_learner_errors_and_the_autoencoder(tmp_path: Path):
             sfmnet.CommandLearner(**settings).fit(sensors, commands)
 
 
-class Frame:
-    """What a pandas DataFrame offers a learner: named columns and its values as an array (pandas is not required)."""
+class Labels(list):
+    """What a pandas index offers: row labels that compare with ``equals``."""
 
-    def __init__(self, values: np.ndarray, columns: list[str]) -> None:
-        self.values, self.columns = values, columns
+    def equals(self, other: object) -> bool:
+        return list(self) == list(other)
+
+
+class Frame:
+    """What a pandas DataFrame offers a learner: named columns, row labels and its values as an array (pandas is not
+    required); a one-dimensional one stands for a Series."""
+
+    def __init__(self, values: np.ndarray, columns: list[str] | None = None, index: list | None = None) -> None:
+        self.values = values
+        self.index = Labels(range(len(values)) if index is None else index)
+        if columns is not None:
+            self.columns = columns
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         return self.values if dtype is None else self.values.astype(dtype)
 
     def __getitem__(self, names: list) -> Frame:
-        return Frame(self.values[:, [self.columns.index(name) for name in names]], list(names))
+        return Frame(self.values[:, [self.columns.index(name) for name in names]], list(names), self.index)
+
+
+def test_arguments_whose_row_labels_differ_are_refused():
+    """Tables and series are paired by position, as arrays are: where their row labels (a pandas index) differ, say
+    so rather than pair each reading with another row's load, time or command (a frame filtered or sorted on its own)."""
+    table = np.arange(40.0).reshape(10, 4)
+    readings = Frame(table[:, :3], ["a", "b", "c"], index=list(range(10, 20)))
+    shuffled = list(range(10, 20))[::-1]
+    with pytest.raises(sfmnet.SfmnetError, match=r"^loads and readings have different row labels \(index\): .*loads.reindex\(readings.index\)"):
+        sfmnet.calibrate(readings, magnitude=1.0, loads=Frame(table[:, 3:], ["x"], index=shuffled))
+    with pytest.raises(sfmnet.SfmnetError, match=r"^time and readings have different row labels"):
+        sfmnet.calibrate(readings, magnitude=1.0, axes=["x", "y"], time=Frame(table[:, 0], index=shuffled))
+    with pytest.raises(sfmnet.SfmnetError, match=r"^commands and sensors have different row labels"):
+        sfmnet.CommandLearner().fit(readings, Frame(np.array(["go"] * 5 + ["stop"] * 5), index=shuffled))
 
 
 def test_calibrate_and_apply_read_a_table_by_its_column_names(tmp_path: Path):

@@ -25,6 +25,25 @@ def column_names(values: Any, name: str) -> list[Any] | None:
     return names
 
 
+def row_labels(values: Any) -> Any | None:
+    """``values``'s row labels (a pandas DataFrame's or Series' index), None for an array or a list."""
+    index = getattr(values, "index", None)
+    return index if hasattr(index, "equals") else None
+
+
+def require_same_row_labels(arguments: dict[str, Any]) -> None:
+    """Arguments given together are paired row by row, by position; where two carry row labels (a pandas index) of
+    the same length that differ, position pairs other rows than the labels say: a one-line error naming both."""
+    labelled = [(name, index) for name, index in ((name, row_labels(value)) for name, value in arguments.items()) if index is not None]
+    for name, other in labelled[1:]:
+        first, labels = labelled[0]
+        if len(labels) == len(other) and not labels.equals(other):
+            raise SfmnetError(
+                f"{name} and {first} have different row labels (index): rows are paired by position, so align them "
+                f"first (e.g. {name}.reindex({first}.index)), or give .to_numpy() to pair them by position"
+            )
+
+
 def columns_by_name(values: Any, wanted: Sequence[Any], name: str, fitted_on: str) -> Any:
     """``values`` (a table) with the ``wanted`` columns, in that order; a missing one is one line naming it.
 
