@@ -587,7 +587,14 @@ class ShapeFromMotion(LinearCalibrator):
         direction's spread is under the grid's spacing it prefers some frames by more than a few known loads can
         outweigh. Three known loads read once and 2,400 uniform rows at SNR 20 (3 axes, 6 channels) left the frame
         0.8-4.6 degrees from the known loads' fit and the error bars, which assume it there, 1.7x too small (method §3).
+        Without known loads, the channels' frame again where the fit started in it (``LinearCalibrator.end_fit``), the
+        law learnt again in it too.
         """
+        if self.frame_of_channels:
+            super().end_fit(recording)
+            if self.refinement == "marginal":
+                self.update_law(recording.whole_batch())
+            return
         if self.refinement != "marginal" or len(self.direction_maps) != 1 or not bool(recording.known.any()):
             return  # nothing turns, so the law learnt at the last step stands
         known = recording.known
