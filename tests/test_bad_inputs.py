@@ -425,7 +425,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     # 3 known poses give 9 equations less the frame's 3: with 2 more poses, 8 for the 9 unknowns.
     "too few static intervals": (
         lambda t: continuous(t, poses=5), r"5 static intervals found but a 3-axis calibration with offsets and 3 known poses needs at least 6 \(the unknowns "
-        r"of its metric constraint\): record more poses held still, each for at least [\d.]+ s \(the shortest interval kept\)",
+        r"of its metric constraint\): record more poses held still, each for at least 1.6 s \(the shortest interval kept, 1.08 s, and "
+        r"the moving window, 0.54 s, half of which reaches into the move at each end\)",
     ),
     "known load in motion": (lambda t: continuous(t, poses=10, known_in_motion=True), r"the known load on line 42 of .*stream.csv was recorded in motion"),
     "time cell empty": (

@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from sfmnet.calibration import Calibration
+from sfmnet.errors import SfmnetError
 from sfmnet.eval.goodness_of_fit import POSE_MISFIT_Z
 from sfmnet.simulators.simulated_stream import ContinuousRecording, simulate_stream, stream_sensor, write_stream_csv
 from sfmnet.linalg.wrench import STANDARD_GRAVITY
@@ -144,6 +145,14 @@ def test_jittered_time_stamps_are_read_in_file_order():
     # A clock coarser than the period (40 ms ticks on 20 ms rows) repeats every other stamp: the period is their mean step.
     coarse = find_static_intervals(readings, np.floor(time / 0.04) * 0.04, window=0.48)
     assert coarse.period == pytest.approx(0.02, rel=1e-3) and np.array_equal(coarse.mask, clean.mask)
+    # Integer seconds still time the rows to a few per cent; epoch seconds kept as float32 (steps of 128 s) do not: a
+    # tester's held two values over 90 s of rows, and their period came out 1.43x the truth's.
+    assert find_static_intervals(readings, np.floor(time), window=0.48).period == pytest.approx(0.02, rel=0.05)
+    epoch = (time + 1.7e9 + 50).astype(np.float32).astype(np.float64)
+    with pytest.raises(SfmnetError, match=r"^the time column steps by 128 s, 100% of the 128 s it spans over 2,100 rows: too coarse"):
+        find_static_intervals(readings, epoch)
+    with pytest.raises(SfmnetError, match=r"^the time column holds one value, 1.7e\+09, on its first 2,100 rows: .*float32"):
+        find_static_intervals(readings, (time + 1.7e9).astype(np.float32).astype(np.float64))
 
 
 def test_rows_logged_twice_are_not_counted_as_new_measurements(tmp_path: Path):

@@ -54,6 +54,9 @@ DEFAULT_NOISE_QUANTILE = 0.1
 GAP_PERIODS = 5.0         # a time step over this many ticks splits the stream
 JITTER_PERIODS = 2.0      # a time step back by at most this many ticks is jitter, not disorder
 MAX_GAP_FRACTION = 0.1    # more of the steps gaps than this: the time column is not one clock at one rate
+# A clock whose tick is over this fraction of the recording's span puts its period (span over rows) that far off: a
+# tester's epoch seconds stored as float32 (steps of 128 s) held 2 values over 90 s of rows, a period 1.43x wrong.
+MAX_TICK_PER_SPAN = 0.25
 FULL_WINDOWS = 100        # the noise floor is taken over whole windows only when at least this many are sampled
 FLAT_VARIANCE = 1e-10     # a window is flat where its variance is under this fraction of the channel's span squared
 FLAT_LEVELS_SHARE = 0.5   # a channel's flat windows this much at its two commonest levels: clipped or stuck there
@@ -352,7 +355,7 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
                     "repair or drop that row (or fit without static intervals: data.static_intervals=false)"
                 )
             if tick is None and len(increments):
-                tick = time_tick(increments)
+                tick = time_tick(joined_time)
             if len(increments):
                 back = increments < -JITTER_PERIODS * tick
                 if back.any():
@@ -379,6 +382,14 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
             preview_time.append(stamps[local])
             previous_time = stamps[-1:]
         previous = block[-1:]
+    if time is not None and tick is not None:
+        span = float(np.asarray(time[f - 1 : f], dtype=np.float64)[0] - np.asarray(time[0:1], dtype=np.float64)[0])
+        if tick > MAX_TICK_PER_SPAN * span:
+            raise SfmnetError(
+                f"the time column steps by {tick:.3g} s, {tick / span:.0%} of the {span:.3g} s it spans over {f:,} rows: "
+                "too coarse to time the rows (seconds since 1970 stored as float32 keep steps of 128 s); store the time "
+                "as float64 or as seconds from the start, or give no time column (rows then go by row order)"
+            )
     variance = squares / f - (total / f) ** 2
     spread = variance > 0
     # A row repeated whole is the logger polling faster than the sensor updates, not a step of the stream: counted,
@@ -402,14 +413,21 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
     )
 
 
-def time_tick(increments: np.ndarray) -> float:
-    """The clock's tick, seconds: the median positive step of ``increments`` (the first chunk's time steps).
+def time_tick(stamps: np.ndarray) -> float:
+    """The clock's tick, seconds: the median positive step of ``stamps`` (the first chunk's times).
 
     Raises:
         SfmnetError: no step increases the time.
     """
+    increments = np.diff(stamps)
     positive = increments[increments > 0]
     if not len(positive):
+        if (increments == 0).all():
+            raise SfmnetError(
+                f"the time column holds one value, {stamps[0]:.3g}, on its first {len(stamps):,} rows: it does not time them "
+                "(seconds since 1970 stored as float32 keep steps of 128 s); store the time as float64 or as seconds from "
+                "the start, or give no time column (rows then go by row order)"
+            )
         raise not_increasing(float(np.median(increments)), "median step")
     return float(np.median(positive))
 

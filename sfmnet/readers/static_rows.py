@@ -108,19 +108,27 @@ def fitted_rows(
     if check_count and not detection.independent and detection.count < needed:
         with_known = f" and {poses} known poses" if poses else ""
         raise SfmnetError(
-            f"{detection.count} static intervals found but a {axes}-axis calibration with offsets{with_known} needs at "
-            f"least {needed} (the unknowns of its metric constraint): record more poses held still, each for at least "
-            f"{shortest_interval(detection)} (the shortest interval kept), tune data.static (window, min_duration, "
-            "threshold), or fit every row with data.static_intervals=false"
+            f"{detection.count} static interval{'' if detection.count == 1 else 's'} found but a {axes}-axis calibration "
+            f"with offsets{with_known} needs at least {needed} (the unknowns of its metric constraint): record more poses "
+            f"held still, each for at least {shortest_hold(detection)} (the shortest interval kept, "
+            f"{in_time(detection, detection.min_rows)}, and the moving window, {in_time(detection, detection.window_rows)}, "
+            "half of which reaches into the move at each end), tune data.static (window, min_duration, threshold), or fit "
+            "every row with data.static_intervals=false"
         )
     return detection.mask
 
 
-def shortest_interval(detection: StaticIntervals) -> str:
-    """The shortest static interval ``detection`` keeps, in seconds where the recording has a time, else in rows."""
+def shortest_hold(detection: StaticIntervals) -> str:
+    """The shortest hold ``detection`` keeps an interval of: its shortest interval and the window's two halves, which
+    reach into the moves at the hold's ends; in seconds where the recording has a time, else in rows."""
+    return in_time(detection, detection.min_rows + detection.window_rows - 1)
+
+
+def in_time(detection: StaticIntervals, rows: int) -> str:
+    """``rows`` in seconds where the recording has a time, else in rows."""
     if detection.period is None:
-        return f"{detection.min_rows:,} rows"
-    return f"{detection.min_rows * detection.period:.3g} s"
+        return f"{rows:,} rows"
+    return f"{rows * detection.period:.3g} s"
 
 
 def known_poses(known: np.ndarray) -> list[np.ndarray]:
