@@ -229,6 +229,17 @@ def as_float_array(values: Any, name: str, wanted: str) -> np.ndarray:
     try:
         return array.astype(np.float64)
     except (TypeError, ValueError) as error:
+        columns = column_names(values, name)
+        for column in columns or []:
+            try:
+                np.asarray(values[[column]]).astype(np.float64)
+            except (TypeError, ValueError):
+                # A table's time or label column left among the channels.
+                pick = {"readings": "channels=[...]", "loads": "axes=[...]"}.get(name, f"{name}[[...]]")
+                raise SfmnetError(
+                    f"column {column!r} of {name} is not numbers ({error}): pick the columns to read by name, {pick}"
+                    f"{', and give a time column as time=...' if name == 'readings' else ''}"
+                ) from None
         raise SfmnetError(f"{name} is not a numeric array ({error}): give {wanted}") from None
 
 

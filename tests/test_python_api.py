@@ -249,6 +249,10 @@ def test_calibrate_and_apply_read_a_table_by_its_column_names(tmp_path: Path):
         np.testing.assert_allclose(applied, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
     with pytest.raises(sfmnet.SfmnetError, match=r"readings has no column s5: the calibration's channels are .*read by name"):
         reference.apply(Frame(table[:, 1:7], [*channels[:5], "ch9"]))
+    # A tester's: a time column left among the channels was "not a numeric array", the column unnamed.
+    stamped = Frame(np.column_stack([np.full(len(table), "2026-12-07T10:00", dtype=object), table[:, 1:7]]), ["stamp", *channels])
+    with pytest.raises(sfmnet.SfmnetError, match=r"^column 'stamp' of readings is not numbers .*: pick the columns to read by name, channels=\[...\], and give a time"):
+        sfmnet.calibrate(stamped, magnitude=9.81, loads=loads)
     with pytest.raises(sfmnet.SfmnetError, match="loads has no column fw: the axes asked for are fw"):
         sfmnet.calibrate(readings, magnitude=9.81, loads=loads, axes=["fw", "fy", "fz"])
     # A second tester's: a string split into letters, a count ignored beside a table, names that clash unexplained.
