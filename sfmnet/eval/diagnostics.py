@@ -41,6 +41,27 @@ MAX_FOUND_POSE_SCATTER = 2.0
 COPY_SCATTER = 1e-9
 
 
+def left_handed_frame_warning(model: LinearCalibrator, matrix: torch.Tensor) -> str | None:
+    """A warning where known loads set a frame that is a mirror image of the channels' (``det C < 0`` with as many
+    channels as axes), else None.
+
+    No check of the fit can see it: every magnitude is right in a mirror image. But the channels of a triad (an
+    accelerometer, a magnetometer) are right-handed in the order their maker numbers them, so a left-handed frame is
+    most often a known load typed with one sign or two axes wrong (a hostile tester's: every known load negated, gravity
+    typed pointing down where an accelerometer at rest reads +g up, 960-1300x the bars; x and y swapped, 430-550x;
+    each trusted and silent).
+    """
+    n, p = matrix.shape
+    if not model.frame_fixed or n != p or n < 2 or float(torch.linalg.det(matrix)) >= 0:
+        return None
+    return (
+        "the known loads set a load frame that is a mirror image of the channels' (the matrix's determinant is "
+        "negative): right only if the channels, in the order given, are a left-handed set; otherwise a known load has "
+        "one axis's sign or two of its axes wrong (an accelerometer at rest reads +g upwards, not -g) and every load "
+        "comes out mirrored"
+    )
+
+
 def calibration_diagnostics(
     model: LinearCalibrator,
     recording: CalibrationRecording,
@@ -85,6 +106,9 @@ def calibration_diagnostics(
                 f"coverage {coverage:.2f} (< {WARN_COVERAGE:g}; 1 is a full {'circle' if n == 2 else 'sphere'}): "
                 "the orientations leave part of the load space unvisited; turn the mass through more of it"
             )
+    handedness = left_handed_frame_warning(model, matrix)
+    if handedness:
+        warnings.append(handedness)
     residuals = model.fitted_residuals(recording, loads)
     # Norms, not squares: no second f x p array (a million-row recording's is 48 MB).
     residual = torch.linalg.vector_norm(residuals, dim=0) / math.sqrt(len(residuals))
