@@ -57,7 +57,7 @@ def calibrate(
         readings: ``(f, p)`` raw readings (numpy, torch or nested lists), one row per sample, ``p >= n``; or a
             table (a pandas DataFrame), read by column name: its columns are the channels, or ``channels`` picks them.
             The other arguments' rows pair with these by position; tables or series whose row labels (index) differ
-            from these are refused.
+            from these (readings given as an array: from each other's) are refused.
         magnitude: the load's magnitude in load units (e.g. ``9.81`` N for 1 kg, or
             ``9.81`` m/s^2 for an accelerometer); or give ``**{"data.mass": kg}``.
         loads: ``(f, n)`` known loads, NaN on the rows whose load is unknown (at least ``n - 1``
