@@ -28,6 +28,7 @@ from sfmnet.errors import SfmnetError
 CONFIG_GROUPS = ("model", "optimizer", "trainer")
 TIME_COLUMN = "time"
 POSE_COLUMN = "pose"
+CONFIGURATION_COLUMN = "configuration"
 
 
 def default_axis_names(n: int) -> list[str]:
@@ -40,6 +41,7 @@ def calibrate(
     loads: Any = None,
     time: Any = None,
     poses: Any = None,
+    configurations: Any = None,
     *,
     channels: Sequence[str] | int | None = None,
     axes: Sequence[str] | int | None = None,
@@ -70,6 +72,9 @@ def calibrate(
         poses: ``(f,)`` the pose each row was held in (numbers, NaN for a row of a pose of its own), or None:
             ``data.group_column``. A pose's rows share one direction, and a pose held more than once (the first
             pose again at the end) is checked for drift between its holds.
+        configurations: six axes (``loads`` of force then torque): ``(f,)`` each row's mass configuration, an id of
+            ``**{"data.configurations": {id: {"mass": kg, "centre_of_mass": [x, y, z]}}}`` (m, the sensor's frame);
+            ``data.configuration_column``. None for one mass.
         channels: the ``p`` channel names (default ``z0, z1, ...``), or their number.
         axes: the ``n`` load axis names, or their number (default ``x, y, z`` for ``n <= 3``, else ``l0, l1, ...``);
             required with ``loads=None``, where they say how many axes there are.
@@ -87,7 +92,7 @@ def calibrate(
     Raises:
         SfmnetError: bad input, one line naming the problem and what to do.
     """
-    require_same_row_labels({"readings": readings, "loads": loads, "time": time, "poses": poses})
+    require_same_row_labels({"readings": readings, "loads": loads, "time": time, "poses": poses, "configurations": configurations})
     readings, channels = named_columns(readings, channels, "readings", "channels")
     if loads is not None:
         loads, axes = named_columns(loads, axes, "loads", "axes")
@@ -114,14 +119,15 @@ def calibrate(
         n = known.shape[1]
     channels = list(channels) if channels is not None else [f"z{i}" for i in range(p)]
     axes = list(axes) if axes is not None else default_axis_names(n)
-    if len(channels) != p or len(axes) != n or len({*channels, *axes, TIME_COLUMN, POSE_COLUMN}) != p + n + 2:
-        names = [*channels, *axes, TIME_COLUMN, POSE_COLUMN]
+    reserved = [TIME_COLUMN, POSE_COLUMN, CONFIGURATION_COLUMN]
+    if len(channels) != p or len(axes) != n or len({*channels, *axes, *reserved}) != p + n + len(reserved):
+        names = [*channels, *axes, *reserved]
         shared = sorted({str(name) for name in names if names.count(name) > 1})
         # A table made from arrays names channels and axes alike (0, 1, 2); say which names clash.
         clash = f" ({', '.join(repr(name) for name in shared)} named twice)" if shared else ""
         raise SfmnetError(
-            f"give {p} distinct channel names and {n} distinct axis names (not '{TIME_COLUMN}' or '{POSE_COLUMN}', "
-            f"which name the time and poses arguments), not channels={channels} and axes={axes}{clash}"
+            f"give {p} distinct channel names and {n} distinct axis names (not {', '.join(map(repr, reserved))}, "
+            f"which name the time, poses and configurations arguments), not channels={channels} and axes={axes}{clash}"
         )
     columns = {name: readings[:, i] for i, name in enumerate(channels)}
     columns.update({name: known[:, i] for i, name in enumerate(axes)})
@@ -135,6 +141,7 @@ def calibrate(
     for name, values, column, key, wanted in (
         ("time", time, TIME_COLUMN, "time_column", "one time (s) per reading"),
         ("poses", poses, POSE_COLUMN, "group_column", "one pose label (a number) per reading"),
+        ("configurations", configurations, CONFIGURATION_COLUMN, "configuration_column", "one configuration id (a number) per reading"),
     ):
         if values is not None:
             array = seconds_from_first(values) if name == "time" else as_float_array(values, name, wanted)

@@ -9,6 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
+import sfmnet
+from sfmnet.calibration import Calibration
 from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -145,13 +148,45 @@ def test_a_load_unit_says_both_units_on_six_axes_and_one_on_fewer():
         load_unit_for("N, N m", 3)
 
 
-def test_a_streamed_six_axis_session_reports_forces_and_torques_apart(tmp_path: Path):
-    np.savetxt(tmp_path / "ft.csv", np.zeros((2, 14)), delimiter=",", header=",".join(
-        [f"s{i}" for i in range(8)] + ["fx", "fy", "fz", "mx", "my", "mz"]), comments="")
+def test_the_python_api_calibrates_six_axes_as_the_command_line_does(tmp_path: Path):
+    """A new user's: six axes were impossible through sfmnet.calibrate, which had no way to give each row's mass
+    configuration (and asked for data.magnitude without one)."""
+    datamodule = session(seed=1)
+    write_six_axis_csv(tmp_path / "ft.csv", datamodule)
+    configurations = {i + 1: c for i, c in enumerate(CONFIGURATIONS)}
     axes = ["fx", "fy", "fz", "mx", "my", "mz"]
-    assert StreamedCalibrationDataModule(str(tmp_path / "ft.csv"), load_columns=axes).load_unit == "N, N m"
-    with pytest.raises(SfmnetError, match="give both, force then torque"):
-        StreamedCalibrationDataModule(str(tmp_path / "ft.csv"), load_columns=axes, load_unit="N")
+    cfg = compose_config([
+        "experiment=calibrate_csv", f"data.path={tmp_path / 'ft.csv'}", f"data.load_columns=[{','.join(axes)}]",
+        "data.configuration_column=config",
+    ])
+    cfg.data.configurations = configurations
+    train(cfg, tmp_path / "cli")
+    recording = datamodule.data.recordings["rotation"]
+    readings = np.array([[float(f"{v:.9f}") for v in row] for row in recording.readings.tolist()])
+    loads = np.array([[float(f"{v:.9f}") for v in row] for row in recording.loads.tolist()])
+    calibration = sfmnet.calibrate(
+        readings, loads=loads, configurations=recording.configuration.numpy() + 1, axes=axes,
+        channels=[f"s{i}" for i in range(8)], **{"data.configurations": configurations},
+    )
+    cli = Calibration.load(tmp_path / "cli" / "calibration.json")
+    assert calibration.extra["load_unit"] == "N, N m" and calibration.axes == axes
+    np.testing.assert_allclose(calibration.matrix.numpy(), cli.matrix.numpy(), rtol=1e-6, atol=1e-12)
+    with pytest.raises(SfmnetError, match=r"^six load axes \(force, then torque\) need each row's mass configuration"):
+        sfmnet.calibrate(readings, magnitude=10.0, loads=loads, axes=axes)
+
+
+def test_six_load_axes_without_mass_configurations_are_refused(tmp_path: Path):
+    """A new user's six load columns without a configuration column were asked for data.magnitude, and given a mass,
+    fitted as one 6-D load of constant size, newtons and newton metres mixed ("no positive-definite solution"); the
+    streamed fit, which takes one mass, had read six load columns as such a load too."""
+    write_six_axis_csv(tmp_path / "ft.csv", session(seed=1))
+    axes = ["fx", "fy", "fz", "mx", "my", "mz"]
+    for mass in (None, 1.028):
+        with pytest.raises(SfmnetError, match=r"^six load axes \(force, then torque\) need each row's mass configuration.*"
+                                              r"data.configuration_column .*with experiment=calibrate_csv$"):
+            CsvCalibrationDataModule(path=str(tmp_path / "ft.csv"), load_columns=axes, mass=mass).setup()
+    with pytest.raises(SfmnetError, match=r"^six load axes .*experiment=calibrate_csv \(in memory: the streamed fit takes one mass\)$"):
+        StreamedCalibrationDataModule(str(tmp_path / "ft.csv"), load_columns=axes)
 
 
 def test_known_torques_off_their_centre_of_mass_are_refused(tmp_path: Path):

@@ -207,6 +207,8 @@ class CsvCalibrationDataModule(CalibrationDataModule):
                 groups=groups,
             )
         else:
+            if len(self.axes) == 6 and np.isnan(loads).any():
+                raise six_axes_need_configurations()
             magnitude = calibration_magnitude(self.magnitude, self.mass, self.gravity)
             self.check_known_magnitudes(loads, np.full(len(loads), magnitude), table)
             recording = CalibrationRecording(
@@ -399,6 +401,17 @@ def pose_labels(values: np.ndarray, detection: StaticIntervals | None = None) ->
 
 # The loads a constant-magnitude calibration can have: a plane's, space's, or a wrench's (force and torque).
 LOAD_AXES = (2, 3, 6)
+
+
+def six_axes_need_configurations(streamed: bool = False) -> SfmnetError:
+    """The error for six load axes (a wrench) given without mass configurations: a tester's were asked for
+    data.magnitude, and with it fitted as one 6-D load of constant size, newtons and newton metres mixed."""
+    experiment = "experiment=calibrate_csv (in memory: the streamed fit takes one mass)" if streamed else "experiment=calibrate_csv"
+    return SfmnetError(
+        "six load axes (force, then torque) need each row's mass configuration, as a wrench's size is not constant: "
+        "give data.configuration_column (the column naming it) and data.configurations ({<id>: {mass: <kg>, "
+        f"centre_of_mass: [x, y, z]}}}}), with {experiment}"
+    )
 
 
 def load_axes(load_columns: list[str], axes: list[str] | None) -> list[str]:

@@ -8,7 +8,7 @@ import torch
 
 from sfmnet.readers.csv_calibration import (
     calibration_magnitude, channel_scale_warnings, hint_row_warnings, load_axes, mirror_hint_fields,
-    monotonic_channel_warnings,
+    monotonic_channel_warnings, six_axes_need_configurations,
 )
 from sfmnet.data.recording import CalibrationData, load_unit_for
 from sfmnet.readers.clock_times import clock_seconds
@@ -75,6 +75,8 @@ class StreamedCalibrationDataModule(RowFileDataModule):
         super().__init__(path, columns=columns, channel_columns=channel_columns, block_rows=block_rows, cache_dir=cache_dir)
         self.load_columns = list(load_columns)
         self.axes = load_axes(self.load_columns, axes)
+        if len(self.axes) == 6:
+            raise six_axes_need_configurations(streamed=True)
         self.magnitude = magnitude
         self.mass = mass
         self.time_column = time_column
