@@ -217,6 +217,25 @@ def check_config(cfg: DictConfig) -> None:
                 raise SfmnetError(problem)
     for key, node, target in target_nodes(values):
         check_arguments(key, node, target)
+    check_data_dir(cfg)
+
+
+def check_data_dir(cfg: DictConfig) -> None:
+    """Where ``data.path`` lies in ``paths.data_dir`` (the real recordings of the built-in experiments) and that folder
+    is missing, one line saying how to point at it: run from elsewhere, a new user's ``../shared/data`` had been
+    "not a folder ...: check data.path", with nothing of ``SFMNET_DATA_DIR``."""
+    data = cfg.get("data")
+    raw = OmegaConf.to_container(data, resolve=False).get("path") if isinstance(data, DictConfig) else None
+    if not (isinstance(raw, str) and "${paths.data_dir}" in raw):
+        return
+    folder = Path(cfg.paths.data_dir).expanduser()
+    if not folder.is_dir():
+        where = "" if folder.is_absolute() else f", relative to {Path.cwd()}, the folder you run in"
+        raise SfmnetError(
+            f"the real recordings' folder {folder} (paths.data_dir{where}) does not exist: set SFMNET_DATA_DIR to the "
+            "folder holding ft_printed_sensor/, wall_following/ and imu_xsens/ (an absolute path runs from anywhere), or "
+            "give paths.data_dir=<folder>"
+        )
 
 
 def strings(values: Any, prefix: str = "") -> list[tuple[str, str]]:

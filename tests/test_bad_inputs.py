@@ -422,6 +422,12 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "n-1 known loads without the mirror bit": (lambda t: calibrate(t, known_loads=2), r"only up to a mirror image: set data.mirror_hint="),
     "non-existent path": (lambda t: (lambda: train(compose_config(["experiment=calibrate_csv", f"data.path={t / 'nope.csv'}", "data.magnitude=9.81"]), t / "run")), r"nope.csv does not exist: check data.path"),
     "unreadable file": (unreadable_npy, r"cannot be read as .npy"),
+    # A new user's, run from another folder: the built-in experiments' recordings were "not a folder ...: check data.path".
+    "real recordings' folder missing": (
+        lambda t: (lambda: train(compose_config(["experiment=ft_printed_sensor_6dof", "paths.data_dir=nowhere/data"]), t / "run")),
+        r"^the real recordings' folder nowhere/data \(paths.data_dir, relative to .*, the folder you run in\) does not exist: set "
+        r"SFMNET_DATA_DIR to the folder holding ft_printed_sensor/",
+    ),
     # 3 known poses give 9 equations less the frame's 3: with 2 more poses, 8 for the 9 unknowns.
     "too few static intervals": (
         lambda t: continuous(t, poses=5), r"5 static intervals found but a 3-axis calibration with offsets and 3 known poses needs at least 6 \(the unknowns "
