@@ -98,7 +98,7 @@ def apply_command(args: list[str]) -> None:
         output,
         overwrite=options.get("overwrite", "false").lower() in ("1", "true", "yes"),
     )
-    print(f"wrote {count} rows of loads to {output}")
+    print(f"wrote {count} rows of loads ({calibration.extra.get('load_unit', 'N')}) to {output}")
     if not calibration.error_bars_trustworthy:
         # Its loads are still what the fit gives; the user should not take them as the sensor's without knowing.
         first = calibration.warnings[0] if calibration.warnings else "the fit failed"

@@ -279,6 +279,7 @@ def test_apply_says_when_the_calibration_was_not_trustworthy(tmp_path: Path):
     train(csv_config(session, *QUIET), run)
     trusted = sfmnet("apply", f"calibration={run / 'calibration.json'}", f"input={session}", f"output={tmp_path / 'a.csv'}")
     assert trusted.returncode == 0 and "NOT TRUSTWORTHY" not in trusted.stderr
+    assert f"rows of loads (N) to {tmp_path / 'a.csv'}" in trusted.stdout  # in their unit (a new user's: "of loads")
     marked = json.loads((run / "calibration.json").read_text())
     marked.update(error_bars_trustworthy=False, warnings=["the known loads sit 3.1x the noise from the fit"])
     (tmp_path / "marked.json").write_text(json.dumps(marked))

@@ -1416,17 +1416,22 @@ def goodness_of_fit(
         )
         if math.isfinite(scale.z):
             metrics.update({"goodness/known_load_scale_pct": 100 * scale.excess, "goodness/known_load_scale_z": scale.z})
+        # Six axes take their loads' size from each configuration's mass and centre of mass, not from one magnitude.
+        given = (
+            "configurations' masses and centres of mass given (data.configurations) do" if known_loads.shape[1] == 6
+            else "magnitude given (data.magnitude, or data.mass times g) does"
+        )
         if abs(scale.z) > MAX_KNOWN_LOAD_SCALE_Z and ratio <= MAX_KNOWN_LOAD_RATIO:
             warnings.append(
                 f"the calibration puts the known loads {abs(100 * scale.excess):.2g} % {'larger' if scale.excess > 0 else 'smaller'} "
-                f"than given, {abs(scale.z):.1f} standard deviations: the magnitude given (data.magnitude, or data.mass "
-                "times g) is not the known loads' own (the mass, or g where the known loads took another); the "
-                "calibration's scale follows the magnitude, so every load it gives is off by that much"
+                f"than given, {abs(scale.z):.1f} standard deviations: the {given} not match the known loads' own (the "
+                "mass, or g where the known loads took another); the calibration's scale follows them, so every load it "
+                "gives is off by that much"
             )
         if ratio > MAX_KNOWN_LOAD_RATIO:
             warnings.append(
                 f"the known loads sit {distance} RMS from where the calibration puts them, {ratio:.1f}x "
                 "what the noise explains: a known load is wrong (column, sign, row) or was applied differently, or the "
-                "magnitude given (data.magnitude) is not the known loads' own"
+                f"{given} not match the known loads' own"
             )
     return GoodnessOfFit(metrics=metrics, warnings=warnings, outlier_rows=outlier_rows)
