@@ -35,8 +35,10 @@ def require_same_row_labels(arguments: dict[str, Any]) -> None:
     """Arguments given together are paired row by row, by position; where two carry row labels (a pandas index) of
     the same length that differ, position pairs other rows than the labels say: a one-line error naming both."""
     labelled = [(name, index) for name, index in ((name, row_labels(value)) for name, value in arguments.items()) if index is not None]
+    if not labelled:
+        return
+    first, labels = labelled[0]
     for name, other in labelled[1:]:
-        first, labels = labelled[0]
         if len(labels) == len(other) and not labels.equals(other):
             raise SfmnetError(
                 f"{name} and {first} have different row labels (index): rows are paired by position, so align them "

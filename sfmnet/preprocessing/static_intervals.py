@@ -57,6 +57,10 @@ MAX_GAP_FRACTION = 0.1    # more of the steps gaps than this: the time column is
 # A clock whose tick is over this fraction of the recording's span puts its period (span over rows) that far off: a
 # tester's epoch seconds stored as float32 (steps of 128 s) held 2 values over 90 s of rows, a period 1.43x wrong.
 MAX_TICK_PER_SPAN = 0.25
+COARSE_CLOCK_ADVICE = (
+    "(seconds since 1970 stored as float32 keep steps of 128 s); store the time as float64 or as seconds from the start, "
+    "or give no time column (rows then go by row order)"
+)
 FULL_WINDOWS = 100        # the noise floor is taken over whole windows only when at least this many are sampled
 FLAT_VARIANCE = 1e-10     # a window is flat where its variance is under this fraction of the channel's span squared
 FLAT_LEVELS_SHARE = 0.5   # a channel's flat windows this much at its two commonest levels: clipped or stuck there
@@ -387,8 +391,7 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
         if tick > MAX_TICK_PER_SPAN * span:
             raise SfmnetError(
                 f"the time column steps by {tick:.3g} s, {tick / span:.0%} of the {span:.3g} s it spans over {f:,} rows: "
-                "too coarse to time the rows (seconds since 1970 stored as float32 keep steps of 128 s); store the time "
-                "as float64 or as seconds from the start, or give no time column (rows then go by row order)"
+                f"too coarse to time the rows {COARSE_CLOCK_ADVICE}"
             )
     variance = squares / f - (total / f) ** 2
     spread = variance > 0
@@ -425,8 +428,7 @@ def time_tick(stamps: np.ndarray) -> float:
         if (increments == 0).all():
             raise SfmnetError(
                 f"the time column holds one value, {stamps[0]:.3g}, on its first {len(stamps):,} rows: it does not time them "
-                "(seconds since 1970 stored as float32 keep steps of 128 s); store the time as float64 or as seconds from "
-                "the start, or give no time column (rows then go by row order)"
+                f"{COARSE_CLOCK_ADVICE}"
             )
         raise not_increasing(float(np.median(increments)), "median step")
     return float(np.median(positive))
