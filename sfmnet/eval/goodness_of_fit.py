@@ -21,7 +21,6 @@ import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-import numpy as np
 import torch
 
 from sfmnet.data.rows import IntervalSums
