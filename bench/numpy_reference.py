@@ -72,9 +72,10 @@ def unit_directions(centred: np.ndarray, shape: np.ndarray) -> np.ndarray:
     return directions / np.linalg.norm(directions, axis=1, keepdims=True)
 
 
-def known_load_rotation(known_readings: np.ndarray, known_loads: np.ndarray, shape: np.ndarray) -> np.ndarray:
-    """The rotation ``R`` minimising ``sum_k |y_k - l_k R S|^2`` (as ``sfmnet.linalg.frame.known_load_rotation``):
+def known_load_rotation(known_readings: np.ndarray, known_loads: np.ndarray, shape: np.ndarray, magnitude: float) -> np.ndarray:
+    """The rotation ``R`` minimising ``sum_k |y_k - F l_k / |l_k| R S|^2`` (as ``sfmnet.linalg.frame.known_load_rotation``):
     Gauss-Newton steps ``R <- polar(I + W) R`` on the skew part ``W``."""
+    known_loads = magnitude * known_loads / np.linalg.norm(known_loads, axis=1, keepdims=True)
     n = shape.shape[0]
     rows, cols = np.triu_indices(n, 1)
     generators = np.zeros((len(rows), n, n))
@@ -104,7 +105,7 @@ def alternation_round(
     centred = motion - motion_mean
     new_shape = np.linalg.solve(centred.T @ centred, centred.T @ (readings - readings_mean))
     new_offset = readings_mean - motion_mean @ new_shape
-    new_shape = known_load_rotation(readings[known] - new_offset, loads[known], new_shape) @ new_shape
+    new_shape = known_load_rotation(readings[known] - new_offset, loads[known], new_shape, magnitude) @ new_shape
     return np.vstack([new_shape, new_offset])
 
 

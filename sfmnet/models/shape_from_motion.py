@@ -979,7 +979,8 @@ class ShapeFromMotion(LinearCalibrator):
         (both scaled as the parameters are); ``shape``: ``S``, ``n x p``."""
         if len(self.direction_maps) != 1 or not len(loads):
             return shape
-        return known_load_rotation(centred, loads, shape) @ shape
+        magnitude = float(torch.linalg.matrix_norm(self.direction_maps[0], ord=2))
+        return known_load_rotation(centred, loads, shape, magnitude) @ shape
 
     @torch.no_grad()
     def alternate(self, batch: Batch) -> dict[str, torch.Tensor]:

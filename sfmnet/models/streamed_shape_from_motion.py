@@ -481,7 +481,7 @@ class StreamedShapeFromMotion(LinearCalibrator):
         offset = solution[self.rank] + self.data.shift if self.estimate_offset else torch.zeros_like(self.data.shift)
         shape = solution[: self.rank]
         if len(self.known):
-            shape = known_load_rotation(self.known_readings() - offset, self.known_loads(), shape) @ shape
+            shape = known_load_rotation(self.known_readings() - offset, self.known_loads(), shape, self.data.magnitude) @ shape
         mapped = self.dimensionless(shape, offset)
         current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
         mixed = self.acceleration.step(current, mapped)
