@@ -18,7 +18,9 @@ defect:
   be used;
 - ``nonlinear``: each channel 0.5 % of its full scale from linear (a square law);
 - ``shuffled``: the sweep's rows given in random order (recording order then says nothing);
-- ``spread10``: each channel's noise drawn log-uniform over a factor 10 (RMS kept), 8 channels (``-p5``, ``-p4``: 5 or 4);
+- ``spread10``: each channel's noise drawn log-uniform over a factor 10 (RMS kept), 8 channels (``-p5``, ``-p4``, ``-p3``:
+  5, 4 or 3);
+- ``glitch``: ten rows (the 101st to the 110th) each channel 10 of its noise's standard deviations up;
 - ``gains``: three of the 8 channels amplified 10x (they carry most of the load), every channel's noise 0.5 % of its
   span (an amplifier's noise grows with its gain);
 - ``slip``: the last 30 % of the rows 2 % light;
@@ -76,6 +78,9 @@ CASES = (
     Case("spread10-p5", "uniform", 5, "spread10"),
     Case("spread10-p5-slip", "uniform", 5, "spread10 slip"),
     Case("spread10-p4", "uniform", 4, "spread10"),
+    Case("spread10-p3", "uniform", 3, "spread10"),
+    Case("spread10-p3-glitch", "uniform", 3, "spread10 glitch"),
+    Case("uniform-p3-glitch", "uniform", 3, "glitch"),
     Case("gains", "uniform", 8, "gains"),
     Case("gains-slip", "uniform", 8, "gains slip"),
     Case("poses", "poses", 3, ""),
@@ -137,6 +142,8 @@ def session(case: Case, seed: int) -> tuple[np.ndarray, np.ndarray | None, torch
     if "gains" in case.defect:
         noise = 0.005 * scale
     readings += generator.normal(size=readings.shape) * noise
+    if "glitch" in case.defect:
+        readings[100:110] += 10 * noise
     if "quantised" in case.defect:
         step = 10 * noise.mean()
         readings = step * np.round(readings / step)

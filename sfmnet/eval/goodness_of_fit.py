@@ -29,6 +29,7 @@ from sfmnet.linalg.channel_noise import (
     channel_noise,
     equal_channel_noise,
     RowSpread,
+    residual_channel_noise,
     residual_spread,
     within_pose_channel_noise,
 )
@@ -1106,19 +1107,28 @@ def goodness_of_fit(
     # Rows held still measure every channel's noise whole; without them (or with only a stream's sums) the readings off
     # the load space tell it as far as (H1) can.
     held = within_pose_channel_noise(readings, groups) if groups is not None and pose_sums is None else None
-    channels = (held or channel_noise(constraint[1], matrix)) if constraint is not None else None
+    channels = held or (channel_noise(constraint[1], matrix) if constraint is not None else None)
     # A row tied to a pose of several rows keeps its whole noise in its residual, as a known load's does: the pose's
     # direction is fitted to all of them, not to it.
     whole = known.clone()
     if groups is not None and poses is not None and poses.tied:
         counts = torch.unique(groups, return_inverse=True, return_counts=True)
         whole |= counts[2][counts[1]] > 1
-    spread = None
-    if channels is not None:
-        variances = channels.variances
-        metrics["goodness/channel_noise_max_ratio"] = float(variances.max() / variances.mean()) ** 0.5
+    if constraint is not None:
         own = constraint[0][~whole[~known]]
-        spread = residual_spread(channels, matrix, whole, own / own.norm(dim=1, keepdim=True))
+        own = own / own.norm(dim=1, keepdim=True)
+    else:
+        own = None if serial_directions is None else serial_directions[~whole]
+    spread = None
+    if own is not None:
+        # Where nothing else tells the channels apart, the rows' own residuals do (H3), for judging them only: the
+        # magnitudes' checks below keep equal noise, which a slipped mass cannot pass for.
+        squares = torch.linalg.vector_norm(residuals, dim=1).square()
+        spread_noise = channels or residual_channel_noise(squares, matrix, whole, own, OUTLIER_Z)
+        if spread_noise is not None:
+            variances = spread_noise.variances
+            metrics["goodness/channel_noise_max_ratio"] = float(variances.max() / variances.mean()) ** 0.5
+            spread = residual_spread(spread_noise, matrix, whole, own)
     outliers, robust_noise = outlying_rows(residuals, torch.where(whole, p, dof), spread)
     if robust:
         fit_noise = robust_noise

@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 import torch
 
+from sfmnet.linalg.chi_square import chi_square_quantile
 from sfmnet.linalg.group_means import group_means
 
 # The prior's standard deviations of each channel's noise variance about the channels' mean, in units of that mean,
@@ -156,6 +157,64 @@ def channel_noise(off_space: torch.Tensor, matrix: torch.Tensor) -> ChannelNoise
     # The evidence chooses the width from the combinations the rows tell; in those they barely tell it favours the
     # narrowest prior, which would vouch for equal noise there. How well the rows fix each combination is theirs alone.
     return ChannelNoise((mean * (1 + change)).clamp(min=0), mean**2 * posterior(max(NOISE_PRIOR_SDS)))
+
+
+# The prior's standard deviation of each channel's variance about the channels' mean, in units of that mean, where
+# the rows' own residuals are the only witness (:func:`residual_channel_noise`): wide, so the rows decide wherever
+# their directions tell the channels apart, and only a combination they leave untold stays near equal noise.
+RESIDUAL_PRIOR_SD = 10.0
+# Rounds of :func:`residual_channel_noise`'s reweighting: each row's weight and whether it is left out depend on the
+# variances, which settle within a few.
+RESIDUAL_ROUNDS = 4
+
+
+def residual_channel_noise(
+    squares: torch.Tensor, matrix: torch.Tensor, whole: torch.Tensor, directions: torch.Tensor, tail: float
+) -> ChannelNoise | None:
+    """Each channel's noise variance from the rows' own squared residuals, where the readings off the load space
+    cannot tell the channels apart (as many channels as axes, or one or two more; method §5, eq. H3).
+
+    A row that fits has ``E |r_j|^2 = tr M_j`` (:func:`residual_spread`, eq. H2), linear in ``v``:
+
+        E |r_j|^2 = sum_k v_k (Q_kk + a_jk^2)   (a row fitted a direction),   sum_k v_k   (a whole row)     (H3)
+
+    with ``a_j = C^T u_j / |C^T u_j|`` the reading-space normal of the constant magnitude at the row. With as many
+    channels as axes (``Q = 0``) the residual is the noise along that normal alone, so rows at different directions
+    weigh the channels differently, and their squares tell the channels apart however few there are off the load
+    space. (H3) is solved as weighted least squares, each row weighed by its square's variance ``2 tr(M_j^2)``, with
+    a wide prior about equal noise (:data:`RESIDUAL_PRIOR_SD`) for the combinations the directions leave untold;
+    rows past the chi-square ``tail`` (a standard-normal quantile) of their own spread, the variances reweighted, are
+    left out, so a few rows far off do not pass for a channel's noise. None with fewer rows than twice the channels.
+
+    Args:
+        squares: ``f``, each row's ``|r_j|^2`` (raw units squared); matrix: ``C``, ``n x p``; whole: ``f`` (bool),
+            rows whose residual is their whole noise (a known load, a row of a tied pose); directions: ``g x n``, the
+            other rows' unit directions, in order (``g`` = their count); tail: where a row is left out.
+
+    Returns:
+        The posterior (:class:`ChannelNoise`), its covariance how well the rows' directions tell each combination.
+    """
+    p = matrix.shape[1]
+    if len(squares) < 2 * p:
+        return None
+    along = directions @ matrix
+    along = along / along.norm(dim=1, keepdim=True)
+    design = torch.ones(len(squares), p, dtype=matrix.dtype)
+    design[~whole] = off_load_space_projector(matrix).diagonal() + along.square()
+    mean = float(squares.median()) / max(float(design.sum(dim=1).median()), torch.finfo(matrix.dtype).tiny)
+    noise = ChannelNoise(torch.full((p,), mean, dtype=matrix.dtype), torch.zeros(p, p, dtype=matrix.dtype))
+    kept = torch.ones_like(whole)
+    for _ in range(RESIDUAL_ROUNDS):
+        spread = residual_spread(noise, matrix, whole, directions)
+        scale = float(noise.variances.mean())
+        variance = 2 * (spread.mean * scale).square() / spread.dof
+        kept = squares <= chi_square_quantile(spread.dof, tail) * spread.mean * scale / spread.dof
+        weighted = design[kept] / variance[kept, None]
+        precision = design[kept].T @ weighted + torch.eye(p, dtype=matrix.dtype) / (RESIDUAL_PRIOR_SD * scale) ** 2
+        covariance = torch.linalg.inv(precision)
+        variances = covariance @ (weighted.T @ squares[kept] + scale / (RESIDUAL_PRIOR_SD * scale) ** 2)
+        noise = ChannelNoise(variances.clamp(min=1e-3 * float(variances.mean().clamp(min=0))), covariance)
+    return noise
 
 
 class RowSpread(NamedTuple):
