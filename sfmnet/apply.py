@@ -33,24 +33,23 @@ def parse_options(args: list[str]) -> dict[str, str]:
 
 
 def output_names(axes: list[str], existing: list[str]) -> list[str]:
-    """The load columns' names: the axes, suffixed ``_calibrated`` where the input already uses the name, and
-    ``_calibrated_2``, ``_calibrated_3``, ... where it uses that too (an earlier output applied again: a reader by name would
-    otherwise find the old loads first)."""
-    names = []
-    for axis in axes:
-        name, copy = axis, 1
-        while name in existing or name in names:
-            copy += 1
-            name = f"{axis}_calibrated" if copy == 2 else f"{axis}_calibrated_{copy - 1}"
-        names.append(name)
-    return names
+    """The load columns' names: the axes, or where the input already uses any of them, every axis suffixed
+    ``_calibrated`` (``_calibrated_2``, ``_calibrated_3``, ... where it uses those too: an earlier output applied
+    again). All of them or none: a reader taking ``fx, fy`` by name would otherwise get one old load beside one new."""
+    copy = 0
+    while True:
+        suffix = "" if copy == 0 else "_calibrated" if copy == 1 else f"_calibrated_{copy}"
+        names = [f"{axis}{suffix}" for axis in axes]
+        if not set(names) & set(existing):
+            return names
+        copy += 1
 
 
 def apply_calibration(
     calibration_path: Path, input_path: Path, output_path: Path, overwrite: bool
 ) -> tuple[int, Calibration]:
-    """Write ``output_path``: every input row and column, then the calibrated loads. Returns the row count and the
-    calibration applied."""
+    """Write ``output_path``: every input row and column, then the calibrated loads. Returns the row count, the load
+    columns' names (:func:`output_names`) and the calibration applied."""
     refuse_overwrite(output_path, overwrite, "output=", "loads.csv", "add overwrite=true")
     if output_path.resolve() == input_path.resolve():
         raise SfmnetError("output= is the input file: write the loads to a new file")
@@ -80,25 +79,30 @@ def apply_calibration(
     def number(value: float) -> str:
         return f"{value:.9g}".replace(".", ",") if comma else f"{value:.9g}"
 
+    names = output_names(calibration.axes, header)
     write_csv_atomic(
         output_path,
-        [*header, *output_names(calibration.axes, header)],
+        [*header, *names],
         ([*cells, *map(number, load)] for (_, cells), load in zip(itertools.chain([first], rows), loads)),
         delimiter=source.separator,
     )
-    return len(loads), calibration
+    return len(loads), names, calibration
 
 
 def apply_command(args: list[str]) -> None:
     options = parse_options(args)
     output = Path(options["output"])
-    count, calibration = apply_calibration(
+    count, names, calibration = apply_calibration(
         Path(options["calibration"]),
         Path(options["input"]),
         output,
         overwrite=options.get("overwrite", "false").lower() in ("1", "true", "yes"),
     )
-    print(f"wrote {count} rows of loads ({calibration.extra.get('load_unit', 'N')}) to {output}")
+    renamed = f" (the input has {', '.join(calibration.axes)} already)" if names != list(calibration.axes) else ""
+    print(
+        f"wrote {count} rows of loads ({calibration.extra.get('load_unit', 'N')}) to {output}, columns "
+        f"{', '.join(names)}{renamed}"
+    )
     if not calibration.error_bars_trustworthy:
         # Its loads are still what the fit gives; the user should not take them as the sensor's without knowing.
         first = calibration.warnings[0] if calibration.warnings else "the fit failed"

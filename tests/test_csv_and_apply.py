@@ -13,7 +13,7 @@ import pytest
 import torch
 from hydra.utils import instantiate
 
-from sfmnet.apply import apply_calibration
+from sfmnet.apply import apply_calibration, output_names
 from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
 from sfmnet.errors import SfmnetError
@@ -49,7 +49,7 @@ def test_csv_contract_end_to_end(tmp_path: Path):
     # Which refinement ran, and the SNR auto chose it by, in the file and on screen.
     assert calibration["refinement"] == "alternation" and calibration["tied_directions"] is False
     assert f"refinement   alternation (direction SNR {calibration['direction_snr']:.3g})" in headline
-    assert f"coverage     {metrics['coverage']:.2f} of the sphere" in headline
+    assert f"coverage     {metrics['coverage']:.2f}: how evenly the load directions span every axis" in headline
     assert f"residuals    {metrics['load_residual/force_rms']:.4g} N RMS in load units" in headline
     assert (
         f"known loads  {metrics['goodness/known_load_rms']:.4g} N RMS per axis from where the calibration puts them "
@@ -66,6 +66,7 @@ def test_csv_contract_end_to_end(tmp_path: Path):
     assert applied.returncode == 0, applied.stderr
     rows = list(csv.DictReader(output.open()))
     assert list(rows[0])[-3:] == ["fx_calibrated", "fy_calibrated", "fz_calibrated"]
+    assert "columns fx_calibrated, fy_calibrated, fz_calibrated (the input has fx, fy, fz already)" in applied.stdout
     assert rows[0]["time"] == "0.00"  # the input's columns are kept as they were
     magnitudes = [math.dist([0, 0, 0], [float(r[f"{a}_calibrated"]) for a in ["fx", "fy", "fz"]]) for r in rows]
     assert abs(np.mean(magnitudes) / 9.81 - 1) < 0.005
@@ -88,6 +89,14 @@ def test_csv_contract_end_to_end(tmp_path: Path):
     assert sfmnet("apply", f"calibration={run_dir / 'calibration.json'}", f"input={output}", f"output={again}").returncode == 0
     header = next(csv.reader(again.open()))
     assert header[-6:] == [*(f"{a}_calibrated" for a in ["fx", "fy", "fz"]), *(f"{a}_calibrated_2" for a in ["fx", "fy", "fz"])]
+
+
+def test_load_columns_are_renamed_all_or_none():
+    """An input with one of the axes' names among its columns: a hostile tester's had fx but not fy, and the output
+    held fx (the input's), fx_calibrated and fy, so a reader taking fx, fy by name mixed an old load with a new one."""
+    assert output_names(["fx", "fy"], ["s0", "s1", "s2", "fx"]) == ["fx_calibrated", "fy_calibrated"]
+    assert output_names(["fx", "fy"], ["s0", "fy_calibrated", "fx"]) == ["fx_calibrated_2", "fy_calibrated_2"]
+    assert output_names(["fx", "fy"], ["s0", "s1"]) == ["fx", "fy"]
 
 
 def test_npz_input(tmp_path: Path):

@@ -45,8 +45,9 @@ def trust_lines(
     if "coverage" in metrics:
         space = "circle" if axes == 2 else "sphere"
         lines.append(
-            f"coverage     {metrics['coverage']:.2f} of the {space} of load directions "
-            f"(1 = every direction visited; below {WARN_COVERAGE:g} warns)"
+            f"coverage     {metrics['coverage']:.2f}: how evenly the load directions span every axis (1 = the whole "
+            f"{space} or as even; {'a quarter circle about 0.6, one line 0' if axes == 2 else 'one plane 0'}; below "
+            f"{WARN_COVERAGE:g} warns)"
         )
     if "load_residual/force_rms" in metrics:
         residual = f"{metrics['load_residual/force_rms']:.4g} {force_unit} RMS in load units"

@@ -113,7 +113,8 @@ def fitted_rows(
             f"held still, each for at least {shortest_hold(detection)} (the shortest interval kept, "
             f"{in_time(detection, detection.min_rows)}, and the moving window, {in_time(detection, detection.window_rows)}, "
             "half of which reaches into the move at each end), tune data.static (window, min_duration, threshold), or fit "
-            "every row with data.static_intervals=false"
+            "every row with data.static_intervals=false (as a magnetometer's should be: moving does not change the field "
+            "it reads, so a continuous rotation is all calibration data)"
         )
     return detection.mask
 
