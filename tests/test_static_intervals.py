@@ -356,3 +356,15 @@ def test_the_slow_ends_of_moves_are_trimmed_off_the_intervals(tmp_path: Path, mo
     assert json.loads((tmp_path / "run" / "calibration.json").read_text())["error_bars_trustworthy"]
     untrimmed = find_static_intervals(recording.readings.numpy(), recording.time.numpy()).mask
     assert (untrimmed & ~recording.static.numpy()).sum() > 0.05 * true_rows
+
+
+def test_holding_out_half_the_intervals_says_when_too_few_are_left(tmp_path: Path):
+    """Twelve holds are enough to fit, six are not: a tester's 12 holds with data.held_out_intervals=true were refused
+    as "coverage 0.14 ... turned about one axis only", or asked for a group column, neither the cause."""
+    recording, _ = stream()
+    write_stream_csv(recording, tmp_path / "stream.csv")
+    no_known_loads = ("data.load_columns=[]", "data.axes=[fx,fy,fz]", "data.channel_columns=[s0,s1,s2,s3,s4,s5,s6,s7]")
+    with pytest.raises(SfmnetError, match=r"fits every other interval \(or group\): 6 of the 12 found, but a 3-axis"):
+        calibrate(tmp_path / "stream.csv", tmp_path / "held_out", "data.held_out_intervals=true", *no_known_loads)
+    with pytest.raises(SfmnetError, match="a time_column, with data.static_intervals not false"):
+        calibrate(tmp_path / "stream.csv", tmp_path / "every_row", "data.held_out_intervals=true", "data.static_intervals=false")

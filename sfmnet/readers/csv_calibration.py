@@ -24,6 +24,7 @@ from sfmnet.readers.table_file import (
 )
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.channel_dependence import dependent_channels, dependent_channels_message
+from sfmnet.linalg.factorisation import known_load_equations, metric_unknowns
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.linalg.wrench import STANDARD_GRAVITY, wrench_map
 
@@ -264,11 +265,25 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         """Intervals (groups) 0, 2, 4, ... to fit, 1, 3, 5, ... held out (their known loads, if any, stay in the fit)."""
         if recording.groups is None or self.configuration_column or self.mirror_hint is not None:
             raise SfmnetError(
-                "data.held_out_intervals needs static intervals (a time_column) or a group_column, one mass, and no "
-                "mirror_hint"
+                "data.held_out_intervals needs static intervals (a time_column, with data.static_intervals not false) or "
+                "a group_column, one mass, and no mirror_hint"
             )
         held_out = (recording.groups % 2 == 1) & ~recording.known
-        return recording.without(held_out), recording.without(~held_out)
+        fitted = recording.without(held_out)
+        # Fitted on half the intervals, a session with enough for the unknowns may have too few: say so, not what a
+        # fit of too few poses then trips over (a tester's 12 holds: "coverage 0.14 ... turned about one axis only").
+        n = len(self.axes)
+        known = int(len(torch.unique(fitted.loads[fitted.known], dim=0)))
+        needed = metric_unknowns(n, True) - (known_load_equations(n, known) - known)
+        kept = len(torch.unique(fitted.groups))
+        if kept < needed:
+            total = len(torch.unique(recording.groups))
+            raise SfmnetError(
+                f"data.held_out_intervals fits every other interval (or group): {kept} of the {total} found, but a {n}-axis "
+                f"calibration with offsets needs at least {needed}; record at least {2 * needed} poses held still, or fit "
+                "them all (data.held_out_intervals=false)"
+            )
+        return fitted, recording.without(~held_out)
 
     def check_known_magnitudes(self, forces: np.ndarray, magnitudes: np.ndarray, table: Table) -> None:
         """Known (force) loads must have their row's mass's magnitude: they are that mass in a known pose."""
