@@ -133,6 +133,13 @@ def contradict_known_loads(rows: list[list[str]]) -> None:
     rows[-2][7:10] = [f"{9.81 * np.cos(angle):.6f}", f"{9.81 * np.sin(angle):.6f}", "0.000000"]
 
 
+def world_frame_known_loads(rows: list[list[str]]) -> None:
+    """Every known load written as gravity in the world's frame, (0, 0, -9.81), as a tester's robot log gave them."""
+    for row in rows[1:]:
+        if row[7] != "":
+            row[7:10] = ["0.000000", "0.000000", "-9.810000"]
+
+
 def trained_calibration(tmp_path: Path) -> Path:
     calibrate(tmp_path)()
     return tmp_path / "run" / "calibration.json"
@@ -420,6 +427,11 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "wrong magnitude": (lambda t: calibrate(t, "data.magnitude=12.0"), r"has magnitude 9.81 but data.magnitude is 12"),
     "contradictory known loads": (lambda t: calibrate(t, edit=contradict_known_loads), r"known load \d of 3 lies \d+ degrees from where the readings put it \(at (9\d|10\d) % of its size\) .*: the known loads contradict each other"),
     "n-1 known loads without the mirror bit": (lambda t: calibrate(t, known_loads=2), r"only up to a mirror image: set data.mirror_hint="),
+    "known loads in the world's frame": (
+        lambda t: calibrate(t, edit=world_frame_known_loads),
+        r"span 1 of 3 load directions \(the known rows' readings point up to \d+ degrees from their mean direction, .*not "
+        r"gravity in the world's frame\).*, or none \(data.load_columns=\[\]",
+    ),
     "non-existent path": (lambda t: (lambda: train(compose_config(["experiment=calibrate_csv", f"data.path={t / 'nope.csv'}", "data.magnitude=9.81"]), t / "run")), r"nope.csv does not exist: check data.path"),
     "unreadable file": (unreadable_npy, r"cannot be read as .npy"),
     # A new user's, run from another folder: the built-in experiments' recordings were "not a folder ...: check data.path".

@@ -98,13 +98,28 @@ def frame_rotation(
         SfmnetError: loads that span fewer than ``n - 1`` directions, or ``n - 1`` without a hint.
     """
     n = known_loads.shape[1]
+    read = estimated_loads
     estimated_loads = median_per_load(estimated_loads, known_loads)
     singular = torch.linalg.svdvals(known_loads)
     span = int((singular > SPAN_TOLERANCE * singular[0]).sum()) if len(singular) else 0
     if span < n - 1:
+        # One load given on rows the sensor read in different directions: loads in the world's frame (gravity's).
+        spread = 0.0
+        if span == 1 and len(known_loads) > 1:
+            directions = read / read.norm(dim=1, keepdim=True)
+            mean = directions.mean(dim=0)
+            cosines = directions @ (mean / mean.norm())
+            spread = float(torch.rad2deg(torch.arccos(cosines.min().clamp(-1.0, 1.0))))
+        world = (
+            f" (the known rows' readings point up to {spread:.0f} degrees from their mean direction, their loads along "
+            "one line: known loads are the load on the sensor in its own frame, turning with it, not gravity in the "
+            "world's frame)" if spread > MAX_DISAGREEMENT_DEG else ""
+        )
         raise SfmnetError(
-            f"the known loads span {span} of {n} load directions: give at least {n - 1} "
-            f"non-parallel known loads (and a mirror hint), or {n} to fix the frame alone"
+            f"the known loads span {span} of {n} load directions{world}: give at least {n - 1} "
+            f"non-parallel known loads (and a mirror hint), {n} to fix the frame alone, or none "
+            "(data.load_columns=[]: every load's size is right, its frame arbitrary, or with as many channels as axes "
+            "the channels' own)"
         )
     u, _, vt = torch.linalg.svd(estimated_loads.T @ known_loads)
     rotation = u @ vt
