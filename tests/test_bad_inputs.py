@@ -478,6 +478,20 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: calibrate(t, edit=set_cell(6, 0, "99.0")),
         r"the time on line 6 of .*session.csv is 99 s after the next row's and the row before's: a corrupt stamp",
     ),
+    # A tester's logger restarted halfway: its clock back at 0 on the second half (had: "repair or drop that row").
+    "clock restarted": (
+        lambda t: continuous(t, poses=10, retime=lambda time: torch.where(time < 10, time, time - 10)),
+        r"the time on line \d+ of .*stream.csv is 9.98 s before the row before's: the clock restarted there, or two logs were "
+        r"joined, .*split the file where the clock restarts",
+    ),
+    # Stamped on a host as packets arrive, 2 rows late on average (exponential): 1 in 10 rows steps back past the jitter.
+    "stamps that jitter past the rows' spacing": (
+        lambda t: continuous(
+            t, poses=10, retime=lambda time: time + torch.empty_like(time).exponential_(50.0, generator=torch.Generator().manual_seed(1))
+        ),
+        r"\d+ of 1,749 steps of the time column \(from line 2 of .*stream.csv\) go back by more than 2 ticks of .* s, the first "
+        r"on line \d+ .*: the stamps jitter by more than the rows' spacing .*sort the rows by time",
+    ),
     "time running backwards": (
         lambda t: continuous(t, poses=10, retime=lambda time: time.flip(0)),
         r"the time column does not increase \(its median step is -0.02 s\): rows must be in time order; sort the file",

@@ -53,6 +53,7 @@ DRIFT_MIDDLE_ROWS = 20_000  # an interval's central rows its ends are judged aga
 DEFAULT_NOISE_QUANTILE = 0.1
 GAP_PERIODS = 5.0         # a time step over this many ticks splits the stream
 JITTER_PERIODS = 2.0      # a time step back by at most this many ticks is jitter, not disorder
+MANY_BACK_STEPS = 0.01    # steps back past the jitter in more than this fraction of a chunk's rows: stamps that jitter, not one bad row
 MAX_GAP_FRACTION = 0.1    # more of the steps gaps than this: the time column is not one clock at one rate
 # A clock whose tick is over this fraction of the recording's span puts its period (span over rows) that far off: a
 # tester's epoch seconds stored as float32 (steps of 128 s) held 2 values over 90 s of rows, a period 1.43x wrong.
@@ -364,6 +365,14 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
                 back = increments < -JITTER_PERIODS * tick
                 if back.any():
                     i = int(np.argmax(back))
+                    many = int(back.sum())
+                    if many > max(3, MANY_BACK_STEPS * len(increments)):
+                        raise SfmnetError(
+                            f"{many} of {len(increments):,} steps of the time column (from {where(base)}) go back by more "
+                            f"than {JITTER_PERIODS:g} ticks of {tick:.3g} s, the first on {where(base + i + 1)}: the stamps "
+                            "jitter by more than the rows' spacing (taken on a host as packets arrive?); sort the rows by "
+                            "time, or fit without static intervals (data.static_intervals=false)"
+                        )
                     jumped = i > 0 and increments[i - 1] > GAP_PERIODS * tick
                     if jumped and joined_time[i - 1] <= joined_time[i + 1] + JITTER_PERIODS * tick:
                         # The row before jumped ahead of both its neighbours: a spike, not a step back.
@@ -373,8 +382,14 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
                             "intervals: data.static_intervals=false)"
                         )
                     row = base + i + 1
+                    if -increments[i] > GAP_PERIODS * tick:
+                        raise SfmnetError(
+                            f"the time on {where(row)} is {-increments[i]:.3g} s before the row before's: the clock "
+                            "restarted there, or two logs were joined, or the rows were written out of order; split the "
+                            "file where the clock restarts and calibrate each part, or sort the rows by time"
+                        )
                     raise SfmnetError(
-                        f"the time on {where(row)} is {-increments[np.argmax(back)]:.3g} s before the row before's, "
+                        f"the time on {where(row)} is {-increments[i]:.3g} s before the row before's, "
                         f"more than {JITTER_PERIODS:g} ticks of {tick:.3g} s (jitter): rows must be in time order; repair "
                         "or drop that row (or fit without static intervals: data.static_intervals=false)"
                     )
