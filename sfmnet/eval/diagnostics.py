@@ -41,9 +41,25 @@ MAX_FOUND_POSE_SCATTER = 2.0
 COPY_SCATTER = 1e-9
 
 
+# A triad's channel reads its own axis at least this many times as strongly as any other (a magnetometer's soft iron
+# reaches 0.3-0.4 across; strain gauges turned every way have no axis of their own).
+TRIAD_DOMINANCE = 2.0
+
+
+def triad_like(matrix: torch.Tensor) -> bool:
+    """Whether the channels are a triad, each reading one load axis of its own (``C``, ``n x n``): in every column of
+    ``C``, scaled to unit length, one axis's entry is :data:`TRIAD_DOMINANCE` times any other's, and no two channels
+    share that axis. Strain gauges in any order are not, and their order has no handedness (a hostile tester's 2-axis
+    fingertips with 2 gauges: about half of clean sessions had been told their frame was mirrored)."""
+    sizes = (matrix / matrix.norm(dim=0, keepdim=True)).abs()
+    top = sizes.topk(2, dim=0).values
+    axes = sizes.argmax(dim=0)
+    return bool((top[0] >= TRIAD_DOMINANCE * top[1]).all()) and len(axes.unique()) == matrix.shape[1]
+
+
 def left_handed_frame_warning(model: LinearCalibrator, matrix: torch.Tensor) -> str | None:
     """A warning where known loads set a frame that is a mirror image of the channels' (``det C < 0`` with as many
-    channels as axes), else None.
+    channels as axes, which are a triad: :func:`triad_like`), else None.
 
     No check of the fit can see it: every magnitude is right in a mirror image. But the channels of a triad (an
     accelerometer, a magnetometer) are right-handed in the order their maker numbers them, so a left-handed frame is
@@ -52,7 +68,7 @@ def left_handed_frame_warning(model: LinearCalibrator, matrix: torch.Tensor) -> 
     each trusted and silent).
     """
     n, p = matrix.shape
-    if not model.frame_fixed or n != p or n < 2 or float(torch.linalg.det(matrix)) >= 0:
+    if not model.frame_fixed or n != p or n < 2 or float(torch.linalg.det(matrix)) >= 0 or not triad_like(matrix):
         return None
     return (
         "the known loads set a load frame that is a mirror image of the channels' (the matrix's determinant is "
