@@ -137,3 +137,15 @@ def test_a_magnetometer_with_one_noisier_channel_is_not_disowned():
     readings[100:110] += 8.0
     calibration = sfmnet.calibrate(readings, 48.0, axes=["x", "y", "z"])
     assert any("far off the model" in warning for warning in calibration.warnings), calibration.warnings
+
+
+def test_rows_of_zeros_far_off_the_model_are_named():
+    """Two read errors (every channel 0) among 2,000 magnetometer rows: too few for the outliers' allowance and under
+    the noise-spread limit at p = n (1.5-4.6x), a hostile tester's sessions were trusted with bars the rows widened."""
+    readings, _ = magnetometer_session(201, [0.3, 0.3, 0.3], 2000)
+    clean = sfmnet.calibrate(readings, 48.0, axes=["x", "y", "z"])
+    assert clean.error_bars_trustworthy, clean.warnings
+    readings[500:502] = 0.0
+    calibration = sfmnet.calibrate(readings, 48.0, axes=["x", "y", "z"])
+    assert not calibration.error_bars_trustworthy
+    assert any("read exactly 0 on every channel (rows 500, 501 of those fitted)" in w for w in calibration.warnings)
