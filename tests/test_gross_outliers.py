@@ -243,26 +243,29 @@ def write_labelled_session(path: Path, readings: torch.Tensor, seed: int, known_
     np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.10g")
 
 
-@pytest.mark.parametrize("glitched", [True, False])
-def test_a_dropped_packet_in_a_known_pose_is_neither_refused_nor_trusted(glitched: bool, tmp_path: Path):
+@pytest.mark.parametrize("glitch", ["zeros", "spike", None])
+def test_a_dropped_packet_in_a_known_pose_is_neither_refused_nor_trusted(glitch: str | None, tmp_path: Path):
     """One row of a known-load pose's 200 read as zeros, on integer counts about an offset of 500 (as a hostile tester's
     session): the frame's Procrustes took it for a known load 42 degrees off and refused every known load as
     contradictory; now each known load is placed by its rows' median. The calibration keeps the row (16x the clean
     matrix error), two rows too few to count as outliers, and was trusted within bars the row had widened: the fit's
-    noise, 10x the median row's, now says so."""
+    noise, 10x the median row's, now says so (a row of 1,000 counts on every channel), and a row of zeros far off the
+    model is named as such."""
     readings, truth = held_poses(2, glitch_spans=0.0)
     rng = np.random.default_rng(2)
     rng.normal(size=(3, 8))
     count = 1 / (0.01 * float((readings - torch.from_numpy(10 * rng.normal(size=8))).std()))
     readings = torch.round(readings * count + 500)
+    glitched = glitch is not None
     if glitched:
-        readings[250] = 0.0
+        readings[250] = 0.0 if glitch == "zeros" else 1000.0
     path = tmp_path / "session.csv"
     write_labelled_session(path, readings, 2)
     overrides = [f"data.path={path}", "data.magnitude=3.0", "data.group_column=pose"]
     train(compose_config(["experiment=calibrate_csv", *overrides]), tmp_path / "run")
     calibration = json.loads((tmp_path / "run" / "calibration.json").read_text())
-    spread = [w for w in calibration["warnings"] if "the noise most rows show" in w]
+    said = "reads exactly 0 on every channel (row 250 of those fitted)" if glitch == "zeros" else "the noise most rows show"
+    spread = [w for w in calibration["warnings"] if said in w]
     assert calibration["error_bars_trustworthy"] == (not glitched)
     assert bool(spread) == glitched
     estimate = torch.linalg.pinv(torch.tensor(calibration["matrix"], dtype=torch.float64)).T

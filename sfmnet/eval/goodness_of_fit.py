@@ -1383,11 +1383,13 @@ def goodness_of_fit(
     elif bool((zero := outliers & (readings == 0).all(dim=1)).any()) and not robust:
         # No chance tail reads exactly 0 on every channel: the allowance for the tail is not theirs (a hostile tester's
         # magnetometer with two such rows among 2,000: trusted, 1.1-2.1x bars the rows had widened 2.5x).
-        rows = ", ".join(str(int(row)) for row in torch.nonzero(zero)[:3, 0])
+        several = int(zero.sum()) > 1
+        rows = ", ".join(str(int(row)) for row in torch.nonzero(zero)[:3, 0]) + (", ..." if int(zero.sum()) > 3 else "")
         warnings.append(
-            f"{int(zero.sum())} row{'s' if int(zero.sum()) > 1 else ''} far off the model read exactly 0 on every channel "
-            f"(rows {rows}{', ...' if int(zero.sum()) > 3 else ''} of those fitted): a dropped packet or a read error, not a "
-            "reading; it pulls the calibration and widens its error bars: remove such rows, or set model.robust=huber"
+            f"{int(zero.sum())} row{'s' if several else ''} far off the model read{'' if several else 's'} exactly 0 on "
+            f"every channel (row{'s' if several else ''} {rows} of those fitted): a dropped packet or a read error, not a "
+            f"reading, which pull{'' if several else 's'} the calibration and widen{'' if several else 's'} its error "
+            "bars: remove such rows, or set model.robust=huber"
         )
     elif fit_noise > MAX_NOISE_SPREAD * robust_noise and not robust:
         warnings.append(
