@@ -315,13 +315,18 @@ def test_known_loads_that_mirror_a_triad_are_pointed_out():
     loads = 9.81 * np.repeat(directions / np.linalg.norm(directions, axis=1, keepdims=True), 20, axis=0)
     readings = loads @ shape + 300 * rng.normal(size=3) + 0.01 * 100 * rng.normal(size=loads.shape)
     poses = np.repeat(np.arange(30.0), 20)
-    for sign, swap, mirrored in ((1, [0, 1, 2], False), (-1, [0, 1, 2], True), (1, [1, 0, 2], True)):
-        known = np.where((poses < 3)[:, None], sign * loads[:, swap], np.nan)
+    # The last two: the triad turned 40 degrees about z in its housing, the known loads given in the housing's frame.
+    turn = np.array([[np.cos(0.7), -np.sin(0.7), 0.0], [np.sin(0.7), np.cos(0.7), 0.0], [0.0, 0.0, 1.0]])
+    cases = ((1, [0, 1, 2], False, np.eye(3)), (-1, [0, 1, 2], True, np.eye(3)), (1, [1, 0, 2], True, np.eye(3)),
+             (-1, [0, 1, 2], True, turn), (1, [0, 1, 2], False, turn))
+    for sign, swap, mirrored, housing in cases:
+        known = np.where((poses < 3)[:, None], sign * (loads @ housing)[:, swap], np.nan)
         calibration = sfmnet.calibrate(readings, magnitude=9.81, loads=known, poses=poses)
         said = [warning for warning in calibration.warnings if "mirror image of the channels'" in warning]
         assert bool(said) is mirrored and bool(np.linalg.det(calibration.matrix.numpy()) < 0) is mirrored
     # Two strain gauges turned every way (a fingertip) are no triad: their order has no handedness, and a negative
-    # determinant says nothing (a hostile tester's clean sessions were told their frame was mirrored in about half).
+    # determinant says nothing (a hostile tester's clean sessions were told their frame was mirrored in about half);
+    # only three channels for three axes are judged.
     for seed in range(6):
         rng = np.random.default_rng(seed)
         gauges = rng.normal(size=(2, 2)) * 100
