@@ -429,7 +429,8 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "n-1 known loads without the mirror bit": (lambda t: calibrate(t, known_loads=2), r"only up to a mirror image: set data.mirror_hint="),
     "known loads in the world's frame": (
         lambda t: calibrate(t, edit=world_frame_known_loads),
-        r"span 1 of 3 load directions \(the known rows' readings point up to \d+ degrees from their mean direction, .*not "
+        r"span 1 of 3 load directions \(the known rows' readings point up to \d+ degrees from their mean direction where their "
+        r"loads lie on one line: .*not "
         r"gravity in the world's frame\).*, or none \(data.load_columns=\[\]",
     ),
     "non-existent path": (lambda t: (lambda: train(compose_config(["experiment=calibrate_csv", f"data.path={t / 'nope.csv'}", "data.magnitude=9.81"]), t / "run")), r"nope.csv does not exist: check data.path"),
@@ -833,6 +834,24 @@ def test_bad_input_is_refused_with_one_clear_message(case: str, tmp_path: Path):
     # Nor is anything written: no loads, no half-written temporary file.
     assert case == "output path already exists" or not (tmp_path / "loads.csv").exists()
     assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_known_loads_both_ways_along_one_line_are_not_taken_for_the_worlds_frame():
+    """Known loads +z on some rows and -z on others, right in the sensor's frame: too few directions, but the readings
+    pointing opposite ways are what such loads give (a tester's: told "up to 180 degrees ... the world's frame")."""
+    import sfmnet
+
+    rng = np.random.default_rng(0)
+    shape = np.eye(3) + 0.1 * rng.normal(size=(3, 6))[:, :3]
+    loads = rng.normal(size=(600, 3))
+    loads *= 9.81 / np.linalg.norm(loads, axis=1, keepdims=True)
+    loads[:20] = [0.0, 0.0, 9.81]
+    loads[20:30] = [0.0, 0.0, -9.81]
+    readings = loads @ shape + 0.01 * rng.normal(size=loads.shape)
+    known = np.full_like(loads, np.nan)
+    known[:30] = loads[:30]
+    with pytest.raises(SfmnetError, match=r"^the known loads span 1 of 3 load directions: give at least 2"):
+        sfmnet.calibrate(readings, 9.81, known)
 
 
 def test_table_is_long_enough():

@@ -106,13 +106,15 @@ def frame_rotation(
         # One load given on rows the sensor read in different directions: loads in the world's frame (gravity's).
         spread = 0.0
         if span == 1 and len(known_loads) > 1:
-            directions = read / read.norm(dim=1, keepdim=True)
+            # Each reading's direction on the line's side its load is on: +z and -z loads read opposite ways rightly.
+            line = torch.linalg.svd(known_loads)[2][0]
+            directions = read / read.norm(dim=1, keepdim=True) * torch.sign(known_loads @ line)[:, None]
             mean = directions.mean(dim=0)
             cosines = directions @ (mean / mean.norm())
             spread = float(torch.rad2deg(torch.arccos(cosines.min().clamp(-1.0, 1.0))))
         world = (
-            f" (the known rows' readings point up to {spread:.0f} degrees from their mean direction, their loads along "
-            "one line: known loads are the load on the sensor in its own frame, turning with it, not gravity in the "
+            f" (the known rows' readings point up to {spread:.0f} degrees from their mean direction where their loads lie "
+            "on one line: known loads are the load on the sensor in its own frame, turning with it, not gravity in the "
             "world's frame)" if spread > MAX_DISAGREEMENT_DEG else ""
         )
         raise SfmnetError(
