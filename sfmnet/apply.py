@@ -45,11 +45,18 @@ def output_names(axes: list[str], existing: list[str]) -> list[str]:
         copy += 1
 
 
+def taken_names(axes: list[str], existing: list[str]) -> list[str]:
+    """The input's columns named as a load column of ``axes`` is (an axis, or one suffixed ``_calibrated...``): the
+    names :func:`output_names` stepped past."""
+    return [name for name in existing if any(name == axis or name.startswith(f"{axis}_calibrated") for axis in axes)]
+
+
 def apply_calibration(
     calibration_path: Path, input_path: Path, output_path: Path, overwrite: bool
-) -> tuple[int, Calibration]:
+) -> tuple[int, list[str], list[str], Calibration]:
     """Write ``output_path``: every input row and column, then the calibrated loads. Returns the row count, the load
-    columns' names (:func:`output_names`) and the calibration applied."""
+    columns' names (:func:`output_names`), the input's columns that took theirs (:func:`taken_names`) and the
+    calibration applied."""
     refuse_overwrite(output_path, overwrite, "output=", "loads.csv", "add overwrite=true")
     if output_path.resolve() == input_path.resolve():
         raise SfmnetError("output= is the input file: write the loads to a new file")
@@ -86,19 +93,19 @@ def apply_calibration(
         ([*cells, *map(number, load)] for (_, cells), load in zip(itertools.chain([first], rows), loads)),
         delimiter=source.separator,
     )
-    return len(loads), names, calibration
+    return len(loads), names, taken_names(calibration.axes, header), calibration
 
 
 def apply_command(args: list[str]) -> None:
     options = parse_options(args)
     output = Path(options["output"])
-    count, names, calibration = apply_calibration(
+    count, names, taken, calibration = apply_calibration(
         Path(options["calibration"]),
         Path(options["input"]),
         output,
         overwrite=options.get("overwrite", "false").lower() in ("1", "true", "yes"),
     )
-    renamed = f" (the input has {', '.join(calibration.axes)} already)" if names != list(calibration.axes) else ""
+    renamed = f" (the input has {', '.join(taken)} already)" if taken else ""
     print(
         f"wrote {count} rows of loads ({calibration.extra.get('load_unit', 'N')}) to {output}, columns "
         f"{', '.join(names)}{renamed}"

@@ -13,7 +13,7 @@ import pytest
 import torch
 from hydra.utils import instantiate
 
-from sfmnet.apply import apply_calibration, output_names
+from sfmnet.apply import apply_calibration, output_names, taken_names
 from sfmnet.eval.calibration_headline import trust_lines
 from sfmnet.simulators.simulated_sensor import ForceSensor3DataModule
 from sfmnet.errors import SfmnetError
@@ -97,6 +97,8 @@ def test_load_columns_are_renamed_all_or_none():
     assert output_names(["fx", "fy"], ["s0", "s1", "s2", "fx"]) == ["fx_calibrated", "fy_calibrated"]
     assert output_names(["fx", "fy"], ["s0", "fy_calibrated", "fx"]) == ["fx_calibrated_2", "fy_calibrated_2"]
     assert output_names(["fx", "fy"], ["s0", "s1"]) == ["fx", "fy"]
+    # The note names the columns that took the names, not every axis.
+    assert taken_names(["fx", "fy", "fz"], ["z0", "fx", "fy_calibrated", "fz", "fxx"]) == ["fx", "fy_calibrated", "fz"]
 
 
 def test_npz_input(tmp_path: Path):
