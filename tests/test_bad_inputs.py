@@ -490,7 +490,7 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
         lambda t: continuous(
             t, poses=10, retime=lambda time: time + torch.empty_like(time).exponential_(50.0, generator=torch.Generator().manual_seed(1))
         ),
-        r"\d+ of 1,749 steps of the time column \(from line 2 of .*stream.csv\) go back by more than 2 ticks of .* s, the first "
+        r"\d+ of 1,749 steps of the time column \(from line 2 of .*stream.csv\) go back by more than 2 ticks \(of .* s, read from these stamps\), the first "
         r"on line \d+ .*: the stamps jitter by more than the rows' spacing .*sort the rows by time",
     ),
     "time running backwards": (

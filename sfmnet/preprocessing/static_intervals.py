@@ -54,6 +54,7 @@ DEFAULT_NOISE_QUANTILE = 0.1
 GAP_PERIODS = 5.0         # a time step over this many ticks splits the stream
 JITTER_PERIODS = 2.0      # a time step back by at most this many ticks is jitter, not disorder
 MANY_BACK_STEPS = 0.01    # steps back past the jitter in more than this fraction of a chunk's rows: stamps that jitter, not one bad row
+MANY_BACK_STEPS_AT_LEAST = 10  # ... and more than this many: a short file's few corrupt stamps are each named
 MAX_GAP_FRACTION = 0.1    # more of the steps gaps than this: the time column is not one clock at one rate
 # A clock whose tick is over this fraction of the recording's span puts its period (span over rows) that far off: a
 # tester's epoch seconds stored as float32 (steps of 128 s) held 2 values over 90 s of rows, a period 1.43x wrong.
@@ -366,12 +367,13 @@ def serial_scan(readings: Rows, time: Rows | None, chunk_rows: int, where: Calla
                 if back.any():
                     i = int(np.argmax(back))
                     many = int(back.sum())
-                    if many > max(3, MANY_BACK_STEPS * len(increments)):
+                    if many > max(MANY_BACK_STEPS_AT_LEAST, MANY_BACK_STEPS * len(increments)):
                         raise SfmnetError(
                             f"{many} of {len(increments):,} steps of the time column (from {where(base)}) go back by more "
-                            f"than {JITTER_PERIODS:g} ticks of {tick:.3g} s, the first on {where(base + i + 1)}: the stamps "
-                            "jitter by more than the rows' spacing (taken on a host as packets arrive?); sort the rows by "
-                            "time, or fit without static intervals (data.static_intervals=false)"
+                            f"than {JITTER_PERIODS:g} ticks (of {tick:.3g} s, read from these stamps), the first on "
+                            f"{where(base + i + 1)}: the stamps jitter by more than the rows' spacing (taken on a host as "
+                            "packets arrive?); sort the rows by time, which moves a reading by a row or two, or fit "
+                            "without static intervals (data.static_intervals=false)"
                         )
                     jumped = i > 0 and increments[i - 1] > GAP_PERIODS * tick
                     if jumped and joined_time[i - 1] <= joined_time[i + 1] + JITTER_PERIODS * tick:
