@@ -447,6 +447,31 @@ def magnitude_misfit(
     return serial_misfit(standardised[:, None], ones, math.sqrt(successive), float(design.shape[1]), weighted)
 
 
+def as_many_channels_magnitude_misfit(
+    residuals: torch.Tensor, left_out: torch.Tensor, matrix: torch.Tensor, serial_design: torch.Tensor | None,
+    noise: ChannelNoise | None,
+) -> SerialMisfit | None:
+    """:func:`magnitude_misfit` with as many channels as axes (``p = n``), where nothing lies off the load space: each
+    row's least-squares load ``C (z_j - o) = m_j + C r_j`` (``m_j`` its fitted load, the first ``n`` columns of
+    ``serial_design``, ``r_j`` its residual; ``C S = I``), the rows' noise as their own residuals tell it (eq. H3). The
+    batch means are judged against the noise of successive rows, which the noise's estimate does not set. A field that
+    changed partway (a magnetometer moved near iron for the last third, 3 % stronger) had been trusted at 12x its bars:
+    the residuals' batch means cancel over rows in every direction. None without a constant magnitude's fitted loads.
+
+    Args:
+        residuals: ``f x p``; left_out: ``f`` (bool), known-load and outlying rows; matrix: ``C``, ``n x n``;
+            serial_design: ``f x q`` (:func:`goodness_of_fit`); noise: the channels' noise, or None (not judged).
+    """
+    n = matrix.shape[0]
+    if serial_design is None or noise is None or matrix.shape[1] != n:
+        return None
+    fitted = serial_design[~left_out, :n]
+    sizes = fitted.norm(dim=1)
+    if not len(sizes) or float(sizes.max() - sizes.min()) > 1e-6 * float(sizes.max()):
+        return None
+    return magnitude_misfit(fitted + residuals[~left_out] @ matrix.T, float(sizes.mean()), matrix, noise)
+
+
 def neighbours_direction(directions: torch.Tensor) -> torch.Tensor:
     """``f x n``: each row's direction from the rows before and after it (the first's and last's from their one
     neighbour), unit, where it lies within :data:`NEIGHBOURS_DIRECTION_ANGLE` of the row's own, else the row's own: the
@@ -1153,7 +1178,7 @@ def goodness_of_fit(
         own = own / own.norm(dim=1, keepdim=True)
     else:
         own = None if serial_directions is None else serial_directions[~whole]
-    spread = None
+    spread, spread_noise = None, None
     if own is not None:
         # Where nothing else tells the channels apart, the rows' own residuals do (H3), for judging them only: the
         # magnitudes' checks below keep equal noise, which a slipped mass cannot pass for.
@@ -1279,6 +1304,16 @@ def goodness_of_fit(
                 )
                 if misfit.z > SERIAL_MISFIT_Z and not robust:
                     warnings.append(magnitude_misfit_warning(misfit))
+    pn_misfit = as_many_channels_magnitude_misfit(
+        residuals, known | outliers, matrix, serial_design, spread_noise
+    ) if constraint is None and groups is None and direction_dims == p else None
+    if pn_misfit is not None:
+        metrics.update(
+            {"goodness/magnitude_misfit_ratio": pn_misfit.ratio, "goodness/magnitude_misfit_z": pn_misfit.z,
+             "goodness/magnitude_batch_rows": float(pn_misfit.batch_rows)}
+        )
+        if pn_misfit.z > SERIAL_MISFIT_Z and not robust:
+            warnings.append(magnitude_misfit_warning(pn_misfit))
     if valley is not None:
         scan, predicted = valley
         ratio = scan.likely_change / predicted if predicted > 0 else math.inf
