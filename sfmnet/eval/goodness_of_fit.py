@@ -1180,8 +1180,9 @@ def goodness_of_fit(
         own = None if serial_directions is None else serial_directions[~whole]
     spread, spread_noise = None, None
     if own is not None:
-        # Where nothing else tells the channels apart, the rows' own residuals do (H3), for judging them only: the
-        # magnitudes' checks below keep equal noise, which a slipped mass cannot pass for.
+        # Where nothing else tells the channels apart, the rows' own residuals do (H3), to judge the rows by: the
+        # magnitudes' scatter below keeps equal noise, which a slipped mass cannot pass for, and with as many channels
+        # as axes their order takes H3 only to weigh the rows.
         squares = torch.linalg.vector_norm(residuals, dim=1).square()
         spread_noise = channels or residual_channel_noise(squares, matrix, whole, own, OUTLIER_Z)
         if spread_noise is not None:

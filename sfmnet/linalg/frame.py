@@ -98,7 +98,7 @@ def frame_rotation(
         SfmnetError: loads that span fewer than ``n - 1`` directions, or ``n - 1`` without a hint.
     """
     n = known_loads.shape[1]
-    read = estimated_loads
+    per_row = estimated_loads
     estimated_loads = median_per_load(estimated_loads, known_loads)
     singular = torch.linalg.svdvals(known_loads)
     span = int((singular > SPAN_TOLERANCE * singular[0]).sum()) if len(singular) else 0
@@ -108,7 +108,7 @@ def frame_rotation(
         if span == 1 and len(known_loads) > 1:
             # Each reading's direction on the line's side its load is on: +z and -z loads read opposite ways rightly.
             line = torch.linalg.svd(known_loads)[2][0]
-            directions = read / read.norm(dim=1, keepdim=True) * torch.sign(known_loads @ line)[:, None]
+            directions = per_row / per_row.norm(dim=1, keepdim=True) * torch.sign(known_loads @ line)[:, None]
             mean = directions.mean(dim=0)
             cosines = directions @ (mean / mean.norm())
             spread = float(torch.rad2deg(torch.arccos(cosines.min().clamp(-1.0, 1.0))))
