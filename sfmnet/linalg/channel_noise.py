@@ -203,7 +203,6 @@ def residual_channel_noise(
     design[~whole] = off_load_space_projector(matrix).diagonal() + along.square()
     mean = float(squares.median()) / max(float(design.sum(dim=1).median()), torch.finfo(matrix.dtype).tiny)
     noise = ChannelNoise(torch.full((p,), mean, dtype=matrix.dtype), torch.zeros(p, p, dtype=matrix.dtype))
-    kept = torch.ones_like(whole)
     for _ in range(RESIDUAL_ROUNDS):
         spread = residual_spread(noise, matrix, whole, directions)
         scale = float(noise.variances.mean())
