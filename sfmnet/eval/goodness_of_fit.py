@@ -1274,6 +1274,7 @@ def goodness_of_fit(
                 # A gain that changed along the recording widens the residuals too: said once, where found in order.
                 if widening.z > GAIN_SPREAD_Z and not gain_changed:
                     warnings.append(channel_spread_warning(widening, names[widening.channel]))
+    magnitudes: SerialMisfit | None = None
     if constraint is not None:
         # Outlying rows have their own check; here a few bumps would read as a mass that is not constant.
         kept = ~outliers[~known]
@@ -1297,24 +1298,16 @@ def goodness_of_fit(
                     "off the load space explains: the load is not one constant magnitude (a slipped or wrong mass, rows "
                     f"in motion) or the sensor is not linear{assumed}"
                 )
-            misfit = magnitude_misfit(constraint[0][kept], constraint[2], matrix, noise)
-            if misfit is not None:
-                metrics.update(
-                    {"goodness/magnitude_misfit_ratio": misfit.ratio, "goodness/magnitude_misfit_z": misfit.z,
-                     "goodness/magnitude_batch_rows": float(misfit.batch_rows)}
-                )
-                if misfit.z > SERIAL_MISFIT_Z and not robust:
-                    warnings.append(magnitude_misfit_warning(misfit))
-    pn_misfit = as_many_channels_magnitude_misfit(
-        residuals, known | outliers, matrix, serial_design, spread_noise
-    ) if constraint is None and groups is None and direction_dims == p else None
-    if pn_misfit is not None:
+            magnitudes = magnitude_misfit(constraint[0][kept], constraint[2], matrix, noise)
+    elif groups is None and direction_dims == p:
+        magnitudes = as_many_channels_magnitude_misfit(residuals, known | outliers, matrix, serial_design, spread_noise)
+    if magnitudes is not None:
         metrics.update(
-            {"goodness/magnitude_misfit_ratio": pn_misfit.ratio, "goodness/magnitude_misfit_z": pn_misfit.z,
-             "goodness/magnitude_batch_rows": float(pn_misfit.batch_rows)}
+            {"goodness/magnitude_misfit_ratio": magnitudes.ratio, "goodness/magnitude_misfit_z": magnitudes.z,
+             "goodness/magnitude_batch_rows": float(magnitudes.batch_rows)}
         )
-        if pn_misfit.z > SERIAL_MISFIT_Z and not robust:
-            warnings.append(magnitude_misfit_warning(pn_misfit))
+        if magnitudes.z > SERIAL_MISFIT_Z and not robust:
+            warnings.append(magnitude_misfit_warning(magnitudes))
     if valley is not None:
         scan, predicted = valley
         ratio = scan.likely_change / predicted if predicted > 0 else math.inf
