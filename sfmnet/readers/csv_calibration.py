@@ -18,13 +18,12 @@ from sfmnet.preprocessing.row_repeats import row_repeats
 from sfmnet.preprocessing.static_intervals import StaticIntervals
 from sfmnet.preprocessing.stuck_channels import stuck_readings
 from sfmnet.readers.clock_times import all_clock_times
-from sfmnet.readers.static_rows import fitted_rows, static_settings
+from sfmnet.readers.static_rows import fitted_rows, intervals_needed, static_settings
 from sfmnet.readers.table_file import (
     Table, check_far_cells, check_finite, read_table, refuse_cells, refuse_columns_named_twice,
 )
 from sfmnet.errors import SfmnetError
 from sfmnet.linalg.channel_dependence import dependent_channels, dependent_channels_message
-from sfmnet.linalg.factorisation import known_load_equations, metric_unknowns
 from sfmnet.linalg.frame import MirrorHint
 from sfmnet.linalg.wrench import STANDARD_GRAVITY, wrench_map
 
@@ -274,7 +273,7 @@ class CsvCalibrationDataModule(CalibrationDataModule):
         # fit of too few poses then trips over (a tester's 12 holds: "coverage 0.14 ... turned about one axis only").
         n = len(self.axes)
         known = int(len(torch.unique(fitted.loads[fitted.known], dim=0)))
-        needed = metric_unknowns(n, True) - (known_load_equations(n, known) - known)
+        needed = intervals_needed(n, known)
         kept = len(torch.unique(fitted.groups))
         if kept < needed:
             total = len(torch.unique(recording.groups))

@@ -104,7 +104,7 @@ def fitted_rows(
         )
     # A known pose's interval counts once among the intervals, but its known load gives its own equations.
     poses = len([pose for pose in known_poses(known) if len(pose)])
-    needed = metric_unknowns(axes, True) - (known_load_equations(axes, poses) - poses)
+    needed = intervals_needed(axes, poses)
     if check_count and not detection.independent and detection.count < needed:
         with_known = f" and {poses} known poses" if poses else ""
         raise SfmnetError(
@@ -117,6 +117,13 @@ def fitted_rows(
             "it reads, so a continuous rotation is all calibration data)"
         )
     return detection.mask
+
+
+def intervals_needed(axes: int, known_poses: int) -> int:
+    """The fewest static intervals (or groups) an ``axes``-axis calibration with offsets can be fitted from, with
+    ``known_poses`` of them known loads: the metric constraint's unknowns, less what each known pose gives beyond the
+    one equation an unknown pose does."""
+    return metric_unknowns(axes, True) - (known_load_equations(axes, known_poses) - known_poses)
 
 
 def shortest_hold(detection: StaticIntervals) -> str:
