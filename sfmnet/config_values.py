@@ -138,8 +138,8 @@ RULES: dict[str, Rule] = {
     # 0 reported an untrained autoencoder's scores as a result (a hostile tester's, exit 0).
     "trainer.max_epochs": Bound(
         int, low=1, nullable=True,
-        why="0 trains nothing and -1, Lightning's no limit, never ends a fit; model.refinement=closed_form skips a "
-        "calibration's refinement",
+        why="0 trains nothing and -1, Lightning's no limit, never ends a fit; experiment=calibrate_stream skips its "
+        "refinement with model.refinement=closed_form",
     ),
     "optimizer.lr": Bound(float, low=0, strict=True),
     "eval.smoothing_window": Bound(int, low=1),

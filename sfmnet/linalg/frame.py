@@ -13,6 +13,8 @@ from sfmnet.linalg.factorisation import WARN_RANK_GAP
 
 # Singular values of the known loads below this fraction of the largest count as missing directions.
 SPAN_TOLERANCE = 1e-6
+# Halvings of a Gauss-Newton step of the frame's turn (known_load_rotation) before it is given up as not lowering the cost.
+STEP_HALVINGS = 30
 
 
 @dataclass(frozen=True)
@@ -244,8 +246,8 @@ def known_load_rotation(
     into ``R S`` (their directions turn with it), so only the few known loads hold the frame and
     the alternation turns it towards them by tiny steps (a slow mode of its iteration). This
     minimises over the turn directly: Gauss-Newton on ``R = exp(sum_a w_a E_a) R_0`` from
-    ``R_0 = I``. The sum is not Procrustes' unless ``S S^T`` is a multiple of ``I``, and for the same reason a known
-    load whose size is not the mass's would turn the frame: each is taken at the magnitude ``F``, its direction
+    ``R_0 = I``, each step halved until the sum falls, so the turn never fits the known loads worse than none. The
+    sum is not Procrustes' unless ``S S^T`` is a multiple of ``I``, and for the same reason a known load whose size is not the mass's would turn the frame: each is taken at the magnitude ``F``, its direction
     alone setting the frame (the reader lets a size 2 % off through; a hostile tester's one known load 1.9 % heavy
     turned a fingertip's frame to 3.6x its bars, trusted). Whether the sizes agree with ``F`` is the goodness of
     fit's to judge (:func:`~sfmnet.eval.goodness_of_fit.known_load_scale`).
@@ -261,13 +263,28 @@ def known_load_rotation(
     n = shape.shape[0]
     generators = skew_generators(n, shape.dtype)
     rotation = torch.eye(n, dtype=shape.dtype)
+
+    def cost(turn: torch.Tensor) -> float:
+        return float((known_readings - known_loads @ turn @ shape).pow(2).sum())
+
+    current = cost(rotation)
     for _ in range(iterations):
         turned = rotation @ shape
         residual = (known_readings - known_loads @ turned).flatten()
         # d(l R S)/dw_a at w = 0 is l E_a R S.
         jacobian = torch.stack([(known_loads @ generator @ turned).flatten() for generator in generators], dim=1)
         step = torch.linalg.lstsq(jacobian, residual[:, None]).solution[:, 0]
-        rotation = torch.linalg.matrix_exp(torch.einsum("a,aij->ij", step, generators)) @ rotation
         if float(step.norm()) <= 1e-15:
+            break
+        # Halved until the cost falls: far from the known loads (a shape still far from the truth) full Gauss-Newton
+        # steps swing back and forth and can end at a worse turn than none.
+        for _ in range(STEP_HALVINGS):
+            trial = torch.linalg.matrix_exp(torch.einsum("a,aij->ij", step, generators)) @ rotation
+            trial_cost = cost(trial)
+            if trial_cost < current:
+                rotation, current = trial, trial_cost
+                break
+            step = step / 2
+        else:
             break
     return rotation

@@ -1,0 +1,95 @@
+"""The alternation descends: no round, and no turn of the frame onto the known loads, fits worse than where it started."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+import sfmnet
+from sfmnet.linalg.frame import known_load_rotation
+
+
+def test_the_turn_onto_the_known_loads_never_fits_them_worse_than_none():
+    """Three known loads within 35 degrees of each other against a shape still far from the truth (a 45-degree cone's
+    alternation at its start, each load's mean reading): full Gauss-Newton steps swung back and forth and ended 47 %
+    above the cost of no turn."""
+    loads = torch.tensor(
+        [[-0.3573, -0.4329, -0.8276], [-0.3478, -0.4990, -0.7938], [0.0573, -0.5251, -0.8491]], dtype=torch.float64
+    )
+    readings = torch.tensor(
+        [
+            [-0.1951, 0.2503, -0.2723, 0.1516, -0.0407, 0.1949, -0.2072, -0.0409],
+            [-0.1913, 0.2527, -0.3172, 0.1182, 0.0143, 0.2436, -0.2239, -0.0163],
+            [-0.1278, 0.0748, -0.4889, -0.7734, 0.6802, 0.6849, -0.3529, 0.2678],
+        ],
+        dtype=torch.float64,
+    )
+    shape = torch.tensor(
+        [
+            [0.1308, -0.3414, -0.2714, -1.5723, 1.1705, 0.7425, -0.2041, 0.5044],
+            [0.0784, -0.2140, 0.4411, -0.1310, -0.1936, -0.3636, 0.1691, -0.0688],
+            [0.1319, -0.0232, 0.2580, 0.6968, -0.4640, -0.4442, 0.2774, -0.1796],
+        ],
+        dtype=torch.float64,
+    )
+
+    def cost(turn: torch.Tensor) -> float:
+        return float((readings - loads @ turn @ shape).pow(2).sum())
+
+    rotation = known_load_rotation(readings, loads, shape, 1.0)
+    assert torch.allclose(rotation @ rotation.T, torch.eye(3, dtype=torch.float64), atol=1e-12)
+    assert cost(rotation) < cost(torch.eye(3, dtype=torch.float64))
+
+
+def wrist_log(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """A hostile tester's robot-wrist log: an 8-channel 3-axis sensor (gains 10 : 1), 1 kg turned through 12 poses
+    within 45 degrees of hanging straight down, each held 2 s at 200 Hz with 1.5 s minimum-jerk moves (inertial loads)
+    between them, noise 0.5 % of each channel's span, known loads on 10 rows in each of the first three holds.
+
+    Returns readings (``f x 8``), loads (``f x 3``, NaN where unknown), time (s), the true calibration matrix and ``F``.
+    """
+    rng = np.random.default_rng(seed)
+    left, _, right = np.linalg.svd(rng.normal(size=(3, 8)), full_matrices=False)
+    shape = 50.0 * (left * np.geomspace(1.0, 0.1, 3)) @ right
+    offset = rng.uniform(200, 800, size=8)
+    poses: list[np.ndarray] = []
+    while len(poses) < 12:
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        if np.degrees(np.arccos(-direction[2])) <= 45:
+            poses.append(direction)
+    magnitude, hold, move = 9.81, 400, 300
+    tau = np.linspace(0, 1, move + 2)[1:-1]
+    blend = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+    loads, held = [], []
+    for k, pose in enumerate(poses):
+        loads.append(np.repeat(magnitude * pose[None], hold, axis=0))
+        held.append(np.full(hold, k))
+        if k < len(poses) - 1:
+            angle = np.arccos(np.clip(pose @ poses[k + 1], -1, 1))
+            path = (np.sin((1 - blend) * angle)[:, None] * pose + np.sin(blend * angle)[:, None] * poses[k + 1]) / np.sin(angle)
+            kick = rng.uniform(0.5, 2.0) * (60 * tau - 180 * tau**2 + 120 * tau**3)[:, None] / 5.77
+            axis = rng.normal(size=3)
+            loads.append(magnitude * path + kick * axis / np.linalg.norm(axis))
+            held.append(np.full(move, -1))
+    true_loads, pose_of_row = np.concatenate(loads), np.concatenate(held)
+    span = np.abs(magnitude * shape).max(axis=0)
+    readings = true_loads @ shape + offset + 0.005 * span * rng.normal(size=(len(true_loads), 8))
+    known = np.full_like(true_loads, np.nan)
+    for k in range(3):
+        rows = np.flatnonzero(pose_of_row == k)
+        middle = rows[len(rows) // 2 - 5 : len(rows) // 2 + 5]
+        known[middle] = true_loads[middle]
+    return readings, known, np.arange(len(readings)) / 200.0, np.linalg.pinv(shape).T, magnitude
+
+
+def test_a_wrist_log_in_a_cone_calibrates_where_accelerated_rounds_climbed_out_of_the_valley():
+    """On a cap of directions with offsets the loss is a long curved valley. Anderson-mixed rounds that raised the loss,
+    and turns onto the known loads that fitted them worse, left this log 277 % from the truth, its residual 1.37x the
+    noise, and 2,000 epochs did not bring it back. Now each round descends; at the default epochs the fit still walks
+    the valley (1-3.4 % from the truth, by the threads' rounding, and says it had not converged), and given 100 epochs it
+    reaches the likelihood's maximum."""
+    readings, loads, time, truth, magnitude = wrist_log(0)
+    calibration = sfmnet.calibrate(readings, magnitude, loads, time=time)
+    error = np.linalg.norm(calibration.matrix - truth) / np.linalg.norm(truth)
+    assert error < 0.10, f"matrix error {error:.1%}"
