@@ -15,6 +15,8 @@ from sfmnet.linalg.factorisation import WARN_RANK_GAP
 SPAN_TOLERANCE = 1e-6
 # Halvings of a Gauss-Newton step of the frame's turn (known_load_rotation) before it is given up as not lowering the cost.
 STEP_HALVINGS = 30
+# A Gauss-Newton step of the turn this small (radians) is taken whatever the cost says: it is at the fit.
+CONVERGED_TURN = 1e-8
 
 
 @dataclass(frozen=True)
@@ -277,11 +279,12 @@ def known_load_rotation(
         if float(step.norm()) <= 1e-15:
             break
         # Halved until the cost falls: far from the known loads (a shape still far from the truth) full Gauss-Newton
-        # steps swing back and forth and can end at a worse turn than none.
+        # steps swing back and forth and can end at a worse turn than none. Near the fit they converge quadratically,
+        # and a cost that rounding keeps from falling must not stop them short (runs on 1 and 2 processes differed).
         for _ in range(STEP_HALVINGS):
             trial = torch.linalg.matrix_exp(torch.einsum("a,aij->ij", step, generators)) @ rotation
             trial_cost = cost(trial)
-            if trial_cost < current:
+            if trial_cost < current or float(step.norm()) < CONVERGED_TURN:
                 rotation, current = trial, trial_cost
                 break
             step = step / 2
