@@ -22,6 +22,7 @@ from unittest import mock
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from sfmnet.apply import apply_calibration
 from sfmnet.cli import config_dir, refuse_bare_words
@@ -32,7 +33,7 @@ from sfmnet.simulators.simulated_stream import simulate_stream, stream_sensor, w
 from sfmnet.readers.sensorimotor_csv import SensorimotorCsvDataModule
 from sfmnet.errors import SfmnetError
 from sfmnet.training.run import train
-from tests.conftest import REPO, compose_config, lightning_checkpoint, write_session
+from tests.conftest import REPO, compose_config, lightning_checkpoint, real_data, write_session
 from tests.test_csv_and_apply import set_cell
 
 Action = Callable[[], object]
@@ -171,6 +172,17 @@ def corrupt_calibration(tmp_path: Path) -> Action:
 def wrong_channel_calibration(tmp_path: Path) -> Action:
     calibration = trained_calibration(tmp_path)
     return apply_to(tmp_path, calibration, "a,b,c\n1,2,3\n")
+
+
+def ft_printed_sensor_without_three_poses(tmp_path: Path) -> Action:
+    """The real sensor's folder with three of the first configuration's twelve pose files left out (a hostile
+    tester's), the default known poses 0, 4 and 9 kept."""
+    folder = tmp_path / "ft"
+    folder.mkdir()
+    for file in sorted(real_data("ft_printed_sensor").glob("data_0.0_*.csv"))[3:]:
+        (folder / file.name).symlink_to(file)
+    configurations = OmegaConf.to_container(OmegaConf.load(REPO / "conf" / "data" / "ft_printed_sensor.yaml").configurations)
+    return lambda: FtPrintedSensorDataModule(str(folder), configurations, [0], axes=3, known_poses=[0, 4, 9]).setup()
 
 
 def sensorimotor(tmp_path: Path, text: str, sensors: list[str], commands: list[str]) -> Action:
@@ -612,6 +624,9 @@ CASES: dict[str, tuple[Callable[[Path], Action], str]] = {
     "six axes with too few known wrenches": (simulated("experiment=ft6dof", "data.known_per_configuration=1"), r"only 5 rows have one: give at least 7 known loads spanning every axis"),
     "MK-V runs too short to move every sensor": (simulated("experiment=mkv_pca", "data.steps=40", "data.train_rooms=1"), r"sensor column .*bump_rear.* is constant in the training data"),
     "real recordings folder missing": (lambda t: (lambda: FtPrintedSensorDataModule(str(t / "none"), {}, [0]).setup()), r"is not a folder of the sensor's CSV files"),
+    "real recordings: a known pose past the files read": (
+        ft_printed_sensor_without_three_poses, r"data.known_poses names pose 9, but .* holds 9 poses \(0-8, in file-name order"
+    ),
     "sensorimotor: command column missing": (lambda t: sensorimotor(t, log_text(300), ["a", "b"], ["command"]), r"command column 'command' is not in .* \(did you mean 'cmd'\?\)"),
     "sensorimotor: constant sensor": (lambda t: sensorimotor(t, log_text(300, constant=1.0), ["a", "b"], ["cmd"]), r"sensor column b is constant in the training data"),
     "sensorimotor: constant sensor, inexact value": (lambda t: sensorimotor(t, log_text(300, constant=1.234), ["a", "b"], ["cmd"]), r"sensor column b is constant in the training data"),

@@ -70,6 +70,15 @@ class FtPrintedSensorDataModule(CalibrationDataModule):
         if self.axes_count == 3 and len(self.use_configurations) != 1:
             raise SfmnetError("a 3-axis calibration uses one mass: give one entry in data.use_configurations")
         readings, wrenches, configuration, poses = self.read_poses()
+        held = int(poses.max()) + 1
+        absent = [pose for pose in self.known_poses if not 0 <= pose < held]
+        if absent:
+            # Otherwise a pose number past the files read (some left out) just leaves one known load fewer, and the
+            # run fails later on what the remaining known loads cannot fix.
+            raise SfmnetError(
+                f"data.known_poses names pose {absent[0]}, but {self.path} holds {held} poses (0-{held - 1}, in file-name "
+                "order of the first configuration): give pose numbers from that range"
+            )
         n = self.axes_count
         known = np.isin(poses, self.known_poses)
         loads = np.where(known[:, None], wrenches[:, :n], np.nan)
