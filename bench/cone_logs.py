@@ -1,4 +1,4 @@
-"""Robot-wrist logs whose poses stay in a cone below the sensor, calibrated by ``auto`` and by the penalised fit. Run by hand:
+"""Robot-wrist logs whose poses stay in a cone below the sensor, by ``auto`` and by the penalised fit. Run by hand:
 
     python bench/cone_logs.py [--seeds 0 1 2 3 4 5 6 7] [--cones 45 30]
 
@@ -30,7 +30,8 @@ def main() -> None:
     args = parser.parse_args()
     warnings.filterwarnings("ignore")
     logging.disable(logging.WARNING)
-    print("| cone | seed | auto error % | auto bars % | trusted | penalty error % | penalty bars % | trusted | auto / penalty |")
+    print("| cone | seed | auto error % | auto bars % | trusted | penalty error % | penalty bars % | trusted "
+          "| auto / penalty |")
     print("|---|---|---|---|---|---|---|---|---|")
     ratios = []
     for cone in args.cones:
@@ -48,8 +49,9 @@ def main() -> None:
                 continue
             (auto, auto_bars, auto_trusted), (penalty, penalty_bars, penalty_trusted) = row
             ratios.append(auto / penalty)
-            print(f"| {cone:g} | {seed} | {100 * auto:.2f} | {100 * auto_bars:.2f} | {'yes' if auto_trusted else 'no'} | "
-                  f"{100 * penalty:.2f} | {100 * penalty_bars:.2f} | {'yes' if penalty_trusted else 'no'} | {auto / penalty:.2f} |")
+            print(f"| {cone:g} | {seed} | {100 * auto:.2f} | {100 * auto_bars:.2f} | {'yes' if auto_trusted else 'no'} "
+                  f"| {100 * penalty:.2f} | {100 * penalty_bars:.2f} | {'yes' if penalty_trusted else 'no'} "
+                  f"| {auto / penalty:.2f} |")
     if ratios:
         print(f"\nauto / penalty over {len(ratios)} logs: median {np.median(ratios):.2f}, worst {max(ratios):.2f}")
 

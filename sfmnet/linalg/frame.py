@@ -13,7 +13,8 @@ from sfmnet.linalg.factorisation import WARN_RANK_GAP
 
 # Singular values of the known loads below this fraction of the largest count as missing directions.
 SPAN_TOLERANCE = 1e-6
-# Halvings of a Gauss-Newton step of the frame's turn (known_load_rotation) before it is given up as not lowering the cost.
+# Halvings of a Gauss-Newton step of the frame's turn (known_load_rotation) before it is given up as not lowering
+# the cost.
 STEP_HALVINGS = 30
 # A Gauss-Newton step of the turn this small (radians) is taken whatever the cost says: it is at the fit.
 CONVERGED_TURN = 1e-8
@@ -249,10 +250,11 @@ def known_load_rotation(
     the alternation turns it towards them by tiny steps (a slow mode of its iteration). This
     minimises over the turn directly: Gauss-Newton on ``R = exp(sum_a w_a E_a) R_0`` from
     ``R_0 = I``, each step halved until the sum falls, so the turn never fits the known loads worse than none. The
-    sum is not Procrustes' unless ``S S^T`` is a multiple of ``I``, and for the same reason a known load whose size is not the mass's would turn the frame: each is taken at the magnitude ``F``, its direction
-    alone setting the frame (the reader lets a size 2 % off through; a hostile tester's one known load 1.9 % heavy
-    turned a fingertip's frame to 3.6x its bars, trusted). Whether the sizes agree with ``F`` is the goodness of
-    fit's to judge (:func:`~sfmnet.eval.goodness_of_fit.known_load_scale`).
+    sum is not Procrustes' unless ``S S^T`` is a multiple of ``I``, and for the same reason a known load whose size is
+    not the mass's would turn the frame: each is taken at the magnitude ``F``, its direction alone setting the frame
+    (the reader lets a size 2 % off through; a hostile tester's one known load 1.9 % heavy turned a fingertip's frame
+    to 3.6x its bars, trusted). Whether the sizes agree with ``F`` is the goodness of fit's to judge
+    (:func:`~sfmnet.eval.goodness_of_fit.known_load_scale`).
 
     Args:
         known_readings: ``k x p`` readings minus offsets ``y_k``; known_loads: ``k x n`` loads

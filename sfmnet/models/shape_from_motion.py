@@ -1034,14 +1034,14 @@ class ShapeFromMotion(LinearCalibrator):
         plain: torch.Tensor | None,
         accepted_loss: float,
     ) -> tuple[tuple[torch.Tensor, ...], float]:
-        """:meth:`scaled_motion` at the current ``(S, o)`` and its loss, where Anderson's mix did not raise the loss above
-        ``accepted_loss`` (the last round's start); else at ``plain``, that round's unaccelerated ``[S; o]``, set as the
-        current one.
+        """:meth:`scaled_motion` at the current ``(S, o)`` and its loss, where Anderson's mix did not raise the loss
+        above ``accepted_loss`` (the last round's start); else at ``plain``, that round's unaccelerated ``[S; o]``, set
+        as the current one.
 
-        A plain round never raises the loss: each of its steps (directions, then the least squares, then the turn onto the
-        known loads) minimises it over what it changes. Mixing rounds extrapolates, and on a cap of directions with offsets,
-        where the loss is a long curved valley, unchecked mixes climbed out of it: a hostile tester's 8-channel sensor
-        with 12 poses in a 45-degree cone at SNR 1500 ended 277 % from the truth, its residual 1.37x the noise.
+        A plain round never raises the loss: each of its steps (directions, then the least squares, then the turn onto
+        the known loads) minimises it over what it changes. Mixing rounds extrapolates, and on a cap of directions with
+        offsets, where the loss is a long curved valley, unchecked mixes climbed out of it: a hostile tester's 8-channel
+        sensor with 12 poses in a 45-degree cone at SNR 1500 ended 277 % from the truth, its residual 1.37x the noise.
         """
         motion_state = self.scaled_motion(scaled, multipliers)
         loss = float(self.loss_terms(*motion_state)["loss"])
@@ -1050,6 +1050,10 @@ class ShapeFromMotion(LinearCalibrator):
         self.set_shape_and_offset(plain)
         motion_state = self.scaled_motion(scaled, multipliers)
         return motion_state, float(self.loss_terms(*motion_state)["loss"])
+
+    def shape_and_offset(self) -> torch.Tensor:
+        """``[S; o]``, ``(n+1) x p`` (parameter units), detached."""
+        return torch.cat([self.shape.detach(), self.offset.detach()[None]])
 
     def set_shape_and_offset(self, stacked: torch.Tensor) -> None:
         """``S`` and ``o`` from ``[S; o]`` (``(n+1) x p``, parameter units)."""
@@ -1076,24 +1080,22 @@ class ShapeFromMotion(LinearCalibrator):
         """
         scaled = self.scaled_batch(batch)
         acceleration = AndersonAcceleration()
-        current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
-        start = current.clone()
+        start = self.shape_and_offset()
         # Each row's multiplier from the last round starts the next round's direction solve.
         multipliers = scaled.readings.new_full((len(scaled.readings),), float("nan"))
         converged = False
         plain, accepted_loss = None, math.inf
         for _ in range(self.alternation_steps):
             motion_state, accepted_loss = self.descended_motion(scaled, multipliers, plain, accepted_loss)
-            current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
             plain = self.alternation_map(motion_state)
-            current = acceleration.step(current, plain)
+            current = acceleration.step(self.shape_and_offset(), plain)
             self.set_shape_and_offset(current)
             if acceleration.step_norm <= ALTERNATION_TOLERANCE * float(current.norm()):
                 converged = True
                 break
         else:
             motion_state, _ = self.descended_motion(scaled, multipliers, plain, accepted_loss)
-            current = torch.cat([self.shape.detach(), self.offset.detach()[None]])
+            current = self.shape_and_offset()
         self.alternation_still_moving = 0.0 if converged else float((current - start).norm() / current.norm())
         return self.loss_terms(*motion_state)
 

@@ -48,7 +48,8 @@ def wrist_log(seed: int, cone: float = 45.0, poses: int = 12, channels: int = 8,
         if k < poses - 1:
             following = directions[k + 1]
             angle = np.arccos(np.clip(pose @ following, -1, 1))
-            path = (np.sin((1 - blend) * angle)[:, None] * pose + np.sin(blend * angle)[:, None] * following) / np.sin(angle)
+            path = np.sin((1 - blend) * angle)[:, None] * pose + np.sin(blend * angle)[:, None] * following
+            path /= np.sin(angle)
             kick = rng.uniform(0.5, 2.0) * (60 * tau - 180 * tau**2 + 120 * tau**3)[:, None] / 5.77
             axis = rng.normal(size=3)
             loads.append(magnitude * path + kick * axis / np.linalg.norm(axis))
