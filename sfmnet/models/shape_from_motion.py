@@ -642,7 +642,7 @@ class ShapeFromMotion(LinearCalibrator):
         def closure() -> torch.Tensor:
             for parameter in parameters:
                 parameter.grad = None
-            loss = self.loss_terms(*self.batch_motion(batch))["loss"]
+            loss = self.loss(batch)["loss"]
             loss.backward()
             return loss
 
